@@ -1,0 +1,50 @@
+//! Subcommands of the `salient` binary. Each translates arguments into library calls and
+//! results into output; the method itself lives in the library.
+
+mod extract;
+
+use std::path::PathBuf;
+
+use anyhow::Context;
+use clap::{Parser, Subcommand};
+
+use salient::Params;
+
+/// Content-based 3D model retrieval with extended cone-curvature salient features.
+#[derive(Debug, Parser)]
+#[command(name = "salient", version, about)]
+pub struct Cli {
+    /// Worker threads for extraction (default: one per core).
+    #[arg(long, global = true)]
+    threads: Option<usize>,
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Debug, Subcommand)]
+enum Command {
+    /// Extract the ECC of a mesh (OBJ, glTF/GLB, OFF, PLY, STL) and print a summary or JSON.
+    Extract(extract::Args),
+}
+
+pub fn run(cli: Cli) -> anyhow::Result<()> {
+    if let Some(threads) = cli.threads {
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build_global()
+            .context("cannot start the worker threads")?;
+    }
+    match cli.command {
+        Command::Extract(args) => extract::run(args),
+    }
+}
+
+/// Parameters from an optional JSON file (missing fields take the SPEC defaults).
+fn load_params(path: Option<&PathBuf>) -> anyhow::Result<Params> {
+    let Some(path) = path else {
+        return Ok(Params::default());
+    };
+    let text = std::fs::read_to_string(path)
+        .with_context(|| format!("cannot read parameters {}", path.display()))?;
+    serde_json::from_str(&text).with_context(|| format!("invalid parameters in {}", path.display()))
+}

@@ -1,0 +1,65 @@
+//! The library's error type: one enum, each variant saying what is wrong with the input
+//! and, where it helps, how to fix it.
+
+use std::path::PathBuf;
+
+use crate::mesh::Format;
+
+/// Everything that can go wrong turning user input into a mesh or a signature.
+#[derive(Debug, thiserror::Error)]
+pub enum Error {
+    /// Neither the extension, the content type nor the first bytes identify a format.
+    #[error("unrecognised mesh format ({0}); supported: OBJ, glTF (.gltf/.glb), OFF, PLY, STL")]
+    UnknownFormat(String),
+
+    /// The file could not be read from disk.
+    #[error("cannot read {path}: {source}")]
+    Io {
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+
+    /// The bytes are not a valid file of the given format.
+    #[error("malformed {format} file: {message}")]
+    Parse { format: Format, message: String },
+
+    /// A glTF file refers to a buffer that is neither embedded nor supplied.
+    #[error("the glTF file needs the external resource `{uri}`, which was not supplied")]
+    MissingResource { uri: String },
+
+    /// A face refers to a vertex that does not exist.
+    #[error("face {face} refers to vertex {index}, but the mesh has {vertex_count} vertices")]
+    IndexOutOfRange {
+        face: usize,
+        index: u64,
+        vertex_count: usize,
+    },
+
+    /// A coordinate is NaN or infinite.
+    #[error("vertex {vertex} has a non-finite coordinate")]
+    NonFinite { vertex: usize },
+
+    /// The file holds no triangles at all (points, lines or an empty scene).
+    #[error("the mesh has no triangles")]
+    NoTriangles,
+
+    /// Every triangle repeats a vertex or has zero area.
+    #[error("all {count} triangles of the mesh are degenerate (repeated vertex or zero area)")]
+    OnlyDegenerate { count: usize },
+
+    /// After welding, too little is left to define a surface.
+    #[error("the mesh welds to {count} vertices; at least 4 are needed for a surface")]
+    TooFewVertices { count: usize },
+
+    /// An input exceeds a configured limit (see [`crate::params::Limits`]).
+    #[error("the mesh has {count} {what}, above the limit of {limit}")]
+    TooLarge {
+        what: &'static str,
+        count: usize,
+        limit: usize,
+    },
+}
+
+/// Shorthand for results of this crate.
+pub type Result<T, E = Error> = std::result::Result<T, E>;

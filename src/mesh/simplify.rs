@@ -1,0 +1,74 @@
+//! Bounding the mesh size (SPEC §1.5) with meshoptimizer's quadric-error edge collapse.
+//!
+//! Collapses move no vertex: the simplified mesh uses a subset of the input vertices, so the
+//! positions reported in input coordinates stay exact.
+
+use glam::DVec3;
+use meshopt::SimplifyOptions;
+
+use super::weld::compact;
+
+/// Simplifies to at most `max_vertices` vertices. Returns `None` when the mesh is already
+/// small enough.
+pub fn simplify(
+    positions: &[DVec3],
+    triangles: &[[u32; 3]],
+    max_vertices: usize,
+) -> Option<(Vec<DVec3>, Vec<[u32; 3]>)> {
+    if positions.len() <= max_vertices {
+        return None;
+    }
+    let points: Vec<[f32; 3]> = positions.iter().map(|p| p.as_vec3().to_array()).collect();
+    let indices: Vec<u32> = triangles.iter().flatten().copied().collect();
+    // meshoptimizer targets an index count; vertices follow triangles roughly 1:2, so aim in
+    // proportion and tighten until the vertex bound holds (it converges in one or two rounds).
+    let mut target = (indices.len() as f64 * max_vertices as f64 / positions.len() as f64) as usize;
+    let mut best = None;
+    for _ in 0..8 {
+        let kept = meshopt::simplify_decoder(
+            &indices,
+            &points,
+            target.max(3),
+            f32::MAX,
+            SimplifyOptions::None,
+            None,
+        );
+        let tris: Vec<[u32; 3]> = kept.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
+        let (p, t) = compact(positions, &tris);
+        let within = p.len() <= max_vertices;
+        let count = p.len();
+        best = Some((p, t));
+        if within {
+            break;
+        }
+        target = (target as f64 * max_vertices as f64 / count as f64 * 0.98) as usize;
+    }
+    best
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn reaches_the_vertex_bound_with_input_vertices() {
+        // A 60 x 60 grid, 3600 vertices.
+        let n = 60u32;
+        let positions: Vec<DVec3> = (0..n * n)
+            .map(|i| DVec3::new((i % n) as f64, (i / n) as f64, ((i % 7) as f64) * 0.1))
+            .collect();
+        let mut triangles = Vec::new();
+        for y in 0..n - 1 {
+            for x in 0..n - 1 {
+                let v = y * n + x;
+                triangles.push([v, v + 1, v + n + 1]);
+                triangles.push([v, v + n + 1, v + n]);
+            }
+        }
+        assert!(simplify(&positions, &triangles, 5000).is_none());
+        let (p, t) = simplify(&positions, &triangles, 1000).unwrap();
+        assert!(p.len() <= 1000 && p.len() > 500, "{} vertices", p.len());
+        assert!(!t.is_empty());
+        assert!(p.iter().all(|q| positions.contains(q)));
+    }
+}

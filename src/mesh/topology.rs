@@ -1,0 +1,135 @@
+//! Connectivity the geodesic and wave code walks on: vertex neighbours with edge lengths
+//! (Dijkstra, SPEC §2.1), the faces around each vertex and the face across each edge
+//! (iso-line tracing, SPEC §2.2). Stored as flat arrays (CSR) so that the per-vertex loops of
+//! extraction touch contiguous memory.
+
+use glam::DVec3;
+
+/// Marks "no face across this edge": a boundary edge, or a non-manifold one (shared by more
+/// than two faces), which waves do not cross (SPEC §1.3, §2.3).
+pub const NO_FACE: u32 = u32::MAX;
+
+/// The face across each edge of each triangle; edge `k` of face `f` runs from corner `k` to
+/// corner `k + 1`.
+#[derive(Debug, Clone)]
+pub struct FaceNeighbours {
+    pub neighbour: Vec<[u32; 3]>,
+    pub boundary_edges: usize,
+    pub non_manifold_edges: usize,
+}
+
+/// Pairs up the faces sharing each undirected edge.
+pub fn face_neighbours(triangles: &[[u32; 3]]) -> FaceNeighbours {
+    let mut edges: Vec<(u32, u32, u32, u8)> = Vec::with_capacity(triangles.len() * 3);
+    for (f, t) in triangles.iter().enumerate() {
+        for k in 0..3 {
+            let (a, b) = (t[k], t[(k + 1) % 3]);
+            edges.push((a.min(b), a.max(b), f as u32, k as u8));
+        }
+    }
+    edges.sort_unstable();
+    let mut neighbour = vec![[NO_FACE; 3]; triangles.len()];
+    let (mut boundary_edges, mut non_manifold_edges) = (0, 0);
+    for run in edges.chunk_by(|x, y| (x.0, x.1) == (y.0, y.1)) {
+        match run {
+            [(_, _, f, i), (_, _, g, j)] => {
+                neighbour[*f as usize][*i as usize] = *g;
+                neighbour[*g as usize][*j as usize] = *f;
+            }
+            [_] => boundary_edges += 1,
+            _ => non_manifold_edges += 1,
+        }
+    }
+    FaceNeighbours {
+        neighbour,
+        boundary_edges,
+        non_manifold_edges,
+    }
+}
+
+/// Mesh connectivity for extraction.
+#[derive(Debug, Clone)]
+pub struct Topology {
+    vertex_start: Vec<u32>,
+    vertex_neighbours: Vec<u32>,
+    edge_lengths: Vec<f64>,
+    face_start: Vec<u32>,
+    vertex_faces: Vec<u32>,
+    /// The face across each edge (see [`FaceNeighbours`]).
+    pub faces: FaceNeighbours,
+    /// Area-weighted vertex normals, the orientation fallback of SPEC §2.4.
+    pub vertex_normals: Vec<DVec3>,
+}
+
+impl Topology {
+    pub fn new(positions: &[DVec3], triangles: &[[u32; 3]]) -> Self {
+        let n = positions.len();
+        let mut pairs: Vec<(u32, u32)> = Vec::with_capacity(triangles.len() * 6);
+        let mut incident: Vec<(u32, u32)> = Vec::with_capacity(triangles.len() * 3);
+        let mut vertex_normals = vec![DVec3::ZERO; n];
+        for (f, t) in triangles.iter().enumerate() {
+            let [a, b, c] = t.map(|v| positions[v as usize]);
+            let area_normal = (b - a).cross(c - a);
+            for k in 0..3 {
+                let (u, v) = (t[k], t[(k + 1) % 3]);
+                pairs.push((u, v));
+                pairs.push((v, u));
+                incident.push((u, f as u32));
+                vertex_normals[u as usize] += area_normal;
+            }
+        }
+        pairs.sort_unstable();
+        pairs.dedup();
+        incident.sort_unstable();
+        let (vertex_start, vertex_neighbours) = csr(n, &pairs);
+        let edge_lengths = vertex_neighbours
+            .iter()
+            .enumerate()
+            .map(|(i, &v)| {
+                let u = pairs[i].0;
+                positions[u as usize].distance(positions[v as usize])
+            })
+            .collect();
+        let (face_start, vertex_faces) = csr(n, &incident);
+        Self {
+            vertex_start,
+            vertex_neighbours,
+            edge_lengths,
+            face_start,
+            vertex_faces,
+            faces: face_neighbours(triangles),
+            vertex_normals: vertex_normals.into_iter().map(|v| v.normalize_or_zero()).collect(),
+        }
+    }
+
+    /// Neighbours of `v` with the lengths of the edges to them.
+    pub fn neighbours(&self, v: u32) -> impl Iterator<Item = (u32, f64)> + '_ {
+        let range = self.vertex_start[v as usize] as usize..self.vertex_start[v as usize + 1] as usize;
+        self.vertex_neighbours[range.clone()]
+            .iter()
+            .copied()
+            .zip(self.edge_lengths[range].iter().copied())
+    }
+
+    /// Faces incident to `v`.
+    pub fn faces_of(&self, v: u32) -> &[u32] {
+        &self.vertex_faces[self.face_start[v as usize] as usize..self.face_start[v as usize + 1] as usize]
+    }
+
+    /// Mean edge length, a measure of the mesh's resolution.
+    pub fn mean_edge_length(&self) -> f64 {
+        self.edge_lengths.iter().sum::<f64>() / self.edge_lengths.len().max(1) as f64
+    }
+}
+
+/// Compressed rows from `(row, value)` pairs sorted by row.
+fn csr(rows: usize, sorted_pairs: &[(u32, u32)]) -> (Vec<u32>, Vec<u32>) {
+    let mut start = vec![0u32; rows + 1];
+    for &(r, _) in sorted_pairs {
+        start[r as usize + 1] += 1;
+    }
+    for r in 0..rows {
+        start[r + 1] += start[r];
+    }
+    (start, sorted_pairs.iter().map(|&(_, v)| v).collect())
+}
