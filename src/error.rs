@@ -52,6 +52,13 @@ pub enum Error {
     #[error("the mesh welds to {count} vertices; at least 4 are needed for a surface")]
     TooFewVertices { count: usize },
 
+    /// A parameter is outside the range the method is defined for.
+    #[error("invalid parameter `{name}`: {message}")]
+    InvalidParameter {
+        name: &'static str,
+        message: &'static str,
+    },
+
     /// An input exceeds a configured limit (see [`crate::params::Limits`]).
     #[error("the mesh has {count} {what}, above the limit of {limit}")]
     TooLarge {

@@ -45,6 +45,7 @@ pub fn extract_path(path: &Path, params: &Params, limits: &Limits) -> Result<Ext
 
 /// Prepares `raw` (SPEC §1) and computes the ECC of every vertex (SPEC §2).
 pub fn extract(raw: &RawMesh, params: &Params) -> Result<Extraction> {
+    params.validate()?;
     let clock = Instant::now();
     let mesh = mesh::prepare(raw, &params.mesh)?;
     let topology_clock = Instant::now();

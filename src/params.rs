@@ -4,6 +4,8 @@
 
 use serde::{Deserialize, Serialize};
 
+use crate::{Error, Result};
+
 /// Version of the parameter set and of the extraction algorithm's semantics.
 pub const PARAMS_VERSION: u32 = 1;
 
@@ -23,6 +25,36 @@ impl Default for Params {
             version: PARAMS_VERSION,
             mesh: MeshParams::default(),
             ecc: EccParams::default(),
+        }
+    }
+}
+
+impl Params {
+    /// Checks that every value is in the range the method is defined for, so that a bad
+    /// parameter file is a clear error rather than a panic or a meaningless signature.
+    pub fn validate(&self) -> Result<()> {
+        let checks: [(bool, &'static str, &'static str); 5] = [
+            (
+                self.mesh.weld_tolerance > 0.0 && self.mesh.weld_tolerance < 0.1,
+                "mesh.weld_tolerance",
+                "must be in (0, 0.1)",
+            ),
+            (self.mesh.max_vertices >= 4, "mesh.max_vertices", "must be at least 4"),
+            (
+                self.ecc.local_size > 0.0 && self.ecc.local_size <= 2.0,
+                "ecc.local_size",
+                "must be in (0, 2]",
+            ),
+            (
+                (1..=64).contains(&self.ecc.waves),
+                "ecc.waves",
+                "must be between 1 and 64",
+            ),
+            (self.ecc.flat_max >= 0.0, "ecc.flat_max", "must not be negative"),
+        ];
+        match checks.into_iter().find(|(ok, _, _)| !ok) {
+            Some((_, name, message)) => Err(Error::InvalidParameter { name, message }),
+            None => Ok(()),
         }
     }
 }

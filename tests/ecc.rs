@@ -186,3 +186,22 @@ impl RoundTo for DVec3 {
             .unwrap()
     }
 }
+
+/// SPEC §4: the same mesh gives the same result on any thread count, bit for bit.
+#[test]
+fn one_and_two_threads_give_identical_ecc() {
+    let raw = shapes::cone(0.4, 30, 40);
+    let on = |threads| {
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap()
+            .install(|| run(&raw, &Params::default()))
+    };
+    let (one, two) = (on(1), on(2));
+    assert_eq!((one.ecc.stats.threads, two.ecc.stats.threads), (1, 2));
+    let bits = |ex: &Extraction| -> Vec<u64> {
+        ex.ecc.vectors().flatten().chain(&ex.ecc.region_size).map(|a| a.to_bits()).collect()
+    };
+    assert_eq!(bits(&one), bits(&two));
+}

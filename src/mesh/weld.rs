@@ -37,12 +37,14 @@ pub fn weld(raw: &RawMesh, tolerance: f64) -> Result<Welded> {
         (q.x as i64, q.y as i64, q.z as i64)
     };
 
-    // Canonical vertex order: by quantised key, ties (same cell) by exact coordinates so the
-    // representative kept for a cell does not depend on the input order.
+    // Canonical vertex order: along a Morton (Z-order) curve, so that vertices near in space
+    // are near in memory (extraction walks neighbourhoods), then by quantised key, then by
+    // exact coordinates so the representative kept for a cell does not depend on input order.
     let mut order: Vec<u32> = (0..raw.positions.len() as u32).collect();
     let exact = |i: u32| {
         let p = raw.positions[i as usize];
-        (key(p), p.x.to_bits(), p.y.to_bits(), p.z.to_bits())
+        let k = key(p);
+        (morton(p, min, max), k, p.x.to_bits(), p.y.to_bits(), p.z.to_bits())
     };
     order.sort_unstable_by_key(|&i| exact(i));
     let mut remap = vec![0u32; raw.positions.len()];
@@ -139,6 +141,21 @@ pub fn bounds(points: &[DVec3]) -> (DVec3, DVec3) {
         (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)),
         |(lo, hi), &p| (lo.min(p), hi.max(p)),
     )
+}
+
+/// Interleaves the bits of the position quantised to 21 bits per axis over the bounds.
+fn morton(p: DVec3, min: DVec3, max: DVec3) -> u64 {
+    let cell = ((p - min) / (max - min).max(DVec3::splat(f64::MIN_POSITIVE)) * 2_097_151.0)
+        .clamp(DVec3::ZERO, DVec3::splat(2_097_151.0));
+    let spread = |v: f64| {
+        let mut x = v as u64;
+        x = (x | (x << 32)) & 0x001f_0000_0000_ffff;
+        x = (x | (x << 16)) & 0x001f_0000_ff00_00ff;
+        x = (x | (x << 8)) & 0x100f_00f0_0f00_f00f;
+        x = (x | (x << 4)) & 0x10c3_0c30_c30c_30c3;
+        (x | (x << 2)) & 0x1249_2492_4924_9249
+    };
+    spread(cell.x) | (spread(cell.y) << 1) | (spread(cell.z) << 2)
 }
 
 fn sorted(mut t: [u32; 3]) -> [u32; 3] {

@@ -1,0 +1,143 @@
+//! The `salient` binary end to end: real files in, exact output shapes out.
+
+mod shapes;
+
+use std::path::Path;
+use std::process::{Command, Output};
+
+use glam::{DMat4, DVec3};
+use salient::mesh::RawMesh;
+use serde_json::Value;
+
+fn salient(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_salient"))
+        .args(args)
+        .output()
+        .expect("the binary runs")
+}
+
+fn write_obj(path: &Path, mesh: &RawMesh) {
+    let mut text = String::new();
+    for p in &mesh.positions {
+        text += &format!("v {} {} {}\n", p.x, p.y, p.z);
+    }
+    for t in &mesh.triangles {
+        text += &format!("f {} {} {}\n", t[0] + 1, t[1] + 1, t[2] + 1);
+    }
+    std::fs::write(path, text).unwrap();
+}
+
+#[test]
+fn extract_json_per_vertex_reports_input_coordinates() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("sphere.obj");
+    // A sphere of radius 5 around (10, -3, 2): positions must come back in these coordinates.
+    let motion = DMat4::from_scale_rotation_translation(
+        DVec3::splat(5.0),
+        Default::default(),
+        DVec3::new(10.0, -3.0, 2.0),
+    );
+    let sphere = shapes::transformed(&shapes::icosphere(3), motion);
+    write_obj(&path, &sphere);
+
+    let out = salient(&["extract", path.to_str().unwrap(), "--json", "--per-vertex"]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let json: Value = serde_json::from_slice(&out.stdout).unwrap();
+    let positions = json["positions"].as_array().unwrap();
+    let ecc = json["ecc"].as_array().unwrap();
+    let region = json["region_size"].as_array().unwrap();
+    assert_eq!(positions.len(), 642);
+    assert_eq!(ecc.len(), positions.len());
+    assert_eq!(region.len(), positions.len());
+    for p in positions {
+        let p: Vec<f64> = p.as_array().unwrap().iter().map(|x| x.as_f64().unwrap()).collect();
+        let r = DVec3::new(p[0], p[1], p[2]).distance(DVec3::new(10.0, -3.0, 2.0));
+        assert!((r - 5.0).abs() < 1e-5, "position {p:?} is not in input coordinates");
+    }
+    for (alpha, size) in ecc.iter().zip(region) {
+        let alpha = alpha.as_array().unwrap();
+        assert_eq!(alpha.len(), 10);
+        // A sphere is convex everywhere: every cone angle is positive.
+        assert!(alpha.iter().all(|a| a.as_f64().unwrap() > 0.0));
+        assert_eq!(size.as_f64(), Some(0.3));
+    }
+    let stats = &json["stats"];
+    assert_eq!(stats["mesh"]["input_vertices"], 642);
+    assert_eq!(stats["mesh"]["welded_vertices"], 642);
+    assert_eq!(stats["mesh"]["triangles"], 1280);
+    assert_eq!(stats["mesh"]["simplified"], false);
+    assert_eq!(stats["ecc"]["complete"], 642);
+    assert_eq!(stats["ecc"]["wave1_invalid"], 0);
+    assert!(stats["ecc"]["geodesic_seconds"].as_f64().unwrap() >= 0.0);
+    assert_eq!(json["params"]["ecc"]["local_size"], 0.3);
+
+    // Without --per-vertex: parameters and statistics only.
+    let out = salient(&["extract", path.to_str().unwrap(), "--json"]);
+    let json: Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert!(json.get("positions").is_none() && json.get("stats").is_some());
+
+    // Text summary.
+    let out = salient(&["extract", path.to_str().unwrap()]);
+    let text = String::from_utf8(out.stdout).unwrap();
+    assert!(text.contains("642 vertices / 1280 triangles read"), "{text}");
+    assert!(text.contains("642 complete"), "{text}");
+}
+
+#[test]
+fn simplification_is_reported() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("sphere.obj");
+    write_obj(&path, &shapes::icosphere(4));
+    let params = dir.path().join("params.json");
+    std::fs::write(&params, r#"{"mesh": {"max_vertices": 1000}}"#).unwrap();
+    let out = salient(&["extract", path.to_str().unwrap(), "--json", "--params", params.to_str().unwrap()]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let json: Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(json["stats"]["mesh"]["simplified"], true);
+    assert!(json["stats"]["mesh"]["vertices"].as_u64().unwrap() <= 1000);
+    assert_eq!(json["params"]["mesh"]["max_vertices"], 1000);
+}
+
+#[test]
+fn bad_input_is_one_line_on_stderr_and_a_failure_code() {
+    let dir = tempfile::tempdir().unwrap();
+    let empty = dir.path().join("empty.obj");
+    std::fs::write(&empty, "").unwrap();
+    let junk = dir.path().join("junk.bin");
+    std::fs::write(&junk, [0xde, 0xad, 0xbe, 0xef, 0x00, 0x17]).unwrap();
+    let bad_params = dir.path().join("p.json");
+    std::fs::write(&bad_params, r#"{"ecc": {"no_such_field": 1}}"#).unwrap();
+    let missing = dir.path().join("missing.obj");
+    for args in [
+        vec!["extract", empty.to_str().unwrap()],
+        vec!["extract", junk.to_str().unwrap()],
+        vec!["extract", missing.to_str().unwrap()],
+        vec!["extract", empty.to_str().unwrap(), "--params", bad_params.to_str().unwrap()],
+    ] {
+        let out = salient(&args);
+        assert_eq!(out.status.code(), Some(1), "{args:?}");
+        let stderr = String::from_utf8(out.stderr).unwrap();
+        assert!(stderr.starts_with("error: "), "{args:?}: {stderr}");
+        assert_eq!(stderr.lines().count(), 1, "{args:?}: {stderr}");
+        assert!(out.stdout.is_empty());
+    }
+}
+
+#[test]
+fn out_of_range_parameters_are_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("sphere.obj");
+    write_obj(&path, &shapes::icosphere(1));
+    for (params, name) in [
+        (r#"{"ecc": {"waves": 0}}"#, "ecc.waves"),
+        (r#"{"ecc": {"local_size": -1}}"#, "ecc.local_size"),
+        (r#"{"mesh": {"max_vertices": 2}}"#, "mesh.max_vertices"),
+    ] {
+        let file = dir.path().join("p.json");
+        std::fs::write(&file, params).unwrap();
+        let out = salient(&["extract", path.to_str().unwrap(), "--params", file.to_str().unwrap()]);
+        assert_eq!(out.status.code(), Some(1));
+        let stderr = String::from_utf8(out.stderr).unwrap();
+        assert!(stderr.contains(name), "{stderr}");
+    }
+}
