@@ -216,7 +216,11 @@ pub fn cone_curvature(source: DVec3, set: &WaveSet, rule: HeightRule, alpha: &mu
             HeightRule::Paper => step.length(),
         };
         previous = centre;
-        let sigma = if (source - centre).dot(normal) >= 0.0 { 1.0 } else { -1.0 };
+        let sigma = if (source - centre).dot(normal) >= 0.0 {
+            1.0
+        } else {
+            -1.0
+        };
         let apex = centre + sigma * height * normal;
         // Direction from S' to O_i; taken from the normal so that a zero height (a plane)
         // still has an axis and gives α = 0.

@@ -52,6 +52,13 @@ pub enum Error {
     #[error("the mesh welds to {count} vertices; at least 4 are needed for a surface")]
     TooFewVertices { count: usize },
 
+    /// The mesh's extent is so large or so small that its geometry cannot be computed in
+    /// double precision; rescale it.
+    #[error(
+        "the mesh's bounding-box diagonal is {diagonal:e}; it must lie between 1e-100 and 1e100"
+    )]
+    ExtentOutOfRange { diagonal: f64 },
+
     /// A parameter is outside the range the method is defined for.
     #[error("invalid parameter `{name}`: {message}")]
     InvalidParameter {

@@ -39,7 +39,11 @@ impl Params {
                 "mesh.weld_tolerance",
                 "must be in (0, 0.1)",
             ),
-            (self.mesh.max_vertices >= 4, "mesh.max_vertices", "must be at least 4"),
+            (
+                self.mesh.max_vertices >= 4,
+                "mesh.max_vertices",
+                "must be at least 4",
+            ),
             (
                 self.ecc.local_size > 0.0 && self.ecc.local_size <= 2.0,
                 "ecc.local_size",
@@ -50,7 +54,11 @@ impl Params {
                 "ecc.waves",
                 "must be between 1 and 64",
             ),
-            (self.ecc.flat_max >= 0.0, "ecc.flat_max", "must not be negative"),
+            (
+                self.ecc.flat_max >= 0.0,
+                "ecc.flat_max",
+                "must not be negative",
+            ),
         ];
         match checks.into_iter().find(|(ok, _, _)| !ok) {
             Some((_, name, message)) => Err(Error::InvalidParameter { name, message }),

@@ -228,8 +228,12 @@ impl WaveTracer {
         self.stamp[f0 as usize] = self.generation;
         let start = points.len();
         let inside = walk.inside(f0);
-        let exit0 = (0..3).find(|&k| !inside[k] && inside[(k + 1) % 3]).unwrap_or(0);
-        let entry0 = (0..3).find(|&k| inside[k] && !inside[(k + 1) % 3]).unwrap_or(0);
+        let exit0 = (0..3)
+            .find(|&k| !inside[k] && inside[(k + 1) % 3])
+            .unwrap_or(0);
+        let entry0 = (0..3)
+            .find(|&k| inside[k] && !inside[(k + 1) % 3])
+            .unwrap_or(0);
         let mut consistent = true;
 
         let (mut face, mut edge) = (f0, exit0);
@@ -363,6 +367,10 @@ fn geometry(
         closed: spans.iter().all(|(_, closed)| *closed),
         centre,
         normal,
-        flatness: if radial > 0.0 { off_plane / radial } else { 0.0 },
+        flatness: if radial > 0.0 {
+            off_plane / radial
+        } else {
+            0.0
+        },
     }
 }

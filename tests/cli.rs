@@ -41,7 +41,11 @@ fn extract_json_per_vertex_reports_input_coordinates() {
     write_obj(&path, &sphere);
 
     let out = salient(&["extract", path.to_str().unwrap(), "--json", "--per-vertex"]);
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let json: Value = serde_json::from_slice(&out.stdout).unwrap();
     let positions = json["positions"].as_array().unwrap();
     let ecc = json["ecc"].as_array().unwrap();
@@ -50,9 +54,17 @@ fn extract_json_per_vertex_reports_input_coordinates() {
     assert_eq!(ecc.len(), positions.len());
     assert_eq!(region.len(), positions.len());
     for p in positions {
-        let p: Vec<f64> = p.as_array().unwrap().iter().map(|x| x.as_f64().unwrap()).collect();
+        let p: Vec<f64> = p
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|x| x.as_f64().unwrap())
+            .collect();
         let r = DVec3::new(p[0], p[1], p[2]).distance(DVec3::new(10.0, -3.0, 2.0));
-        assert!((r - 5.0).abs() < 1e-5, "position {p:?} is not in input coordinates");
+        assert!(
+            (r - 5.0).abs() < 1e-5,
+            "position {p:?} is not in input coordinates"
+        );
     }
     for (alpha, size) in ecc.iter().zip(region) {
         let alpha = alpha.as_array().unwrap();
@@ -79,7 +91,10 @@ fn extract_json_per_vertex_reports_input_coordinates() {
     // Text summary.
     let out = salient(&["extract", path.to_str().unwrap()]);
     let text = String::from_utf8(out.stdout).unwrap();
-    assert!(text.contains("642 vertices / 1280 triangles read"), "{text}");
+    assert!(
+        text.contains("642 vertices / 1280 triangles read"),
+        "{text}"
+    );
     assert!(text.contains("642 complete"), "{text}");
 }
 
@@ -90,8 +105,18 @@ fn simplification_is_reported() {
     write_obj(&path, &shapes::icosphere(4));
     let params = dir.path().join("params.json");
     std::fs::write(&params, r#"{"mesh": {"max_vertices": 1000}}"#).unwrap();
-    let out = salient(&["extract", path.to_str().unwrap(), "--json", "--params", params.to_str().unwrap()]);
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let out = salient(&[
+        "extract",
+        path.to_str().unwrap(),
+        "--json",
+        "--params",
+        params.to_str().unwrap(),
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let json: Value = serde_json::from_slice(&out.stdout).unwrap();
     assert_eq!(json["stats"]["mesh"]["simplified"], true);
     assert!(json["stats"]["mesh"]["vertices"].as_u64().unwrap() <= 1000);
@@ -112,7 +137,12 @@ fn bad_input_is_one_line_on_stderr_and_a_failure_code() {
         vec!["extract", empty.to_str().unwrap()],
         vec!["extract", junk.to_str().unwrap()],
         vec!["extract", missing.to_str().unwrap()],
-        vec!["extract", empty.to_str().unwrap(), "--params", bad_params.to_str().unwrap()],
+        vec![
+            "extract",
+            empty.to_str().unwrap(),
+            "--params",
+            bad_params.to_str().unwrap(),
+        ],
     ] {
         let out = salient(&args);
         assert_eq!(out.status.code(), Some(1), "{args:?}");
@@ -135,7 +165,12 @@ fn out_of_range_parameters_are_refused() {
     ] {
         let file = dir.path().join("p.json");
         std::fs::write(&file, params).unwrap();
-        let out = salient(&["extract", path.to_str().unwrap(), "--params", file.to_str().unwrap()]);
+        let out = salient(&[
+            "extract",
+            path.to_str().unwrap(),
+            "--params",
+            file.to_str().unwrap(),
+        ]);
         assert_eq!(out.status.code(), Some(1));
         let stderr = String::from_utf8(out.stderr).unwrap();
         assert!(stderr.contains(name), "{stderr}");

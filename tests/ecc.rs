@@ -45,7 +45,11 @@ fn check(ex: &Extraction, v: usize, expected: impl Fn(f64) -> f64, radius: f64, 
     for (i, &a) in alpha.iter().enumerate() {
         let g = (i + 1) as f64 * size / n as f64;
         let e = expected(g);
-        let chord = if g < 1.5 * edge { edge / (2.0 * radius) } else { 0.0 };
+        let chord = if g < 1.5 * edge {
+            edge / (2.0 * radius)
+        } else {
+            0.0
+        };
         let tolerance = 0.01 + 0.1 * e.abs() + chord;
         let error = (a - e).abs();
         assert!(
@@ -62,7 +66,11 @@ fn check(ex: &Extraction, v: usize, expected: impl Fn(f64) -> f64, radius: f64, 
 fn sphere_gives_g_over_2r_for_every_source() {
     for subdivisions in [4, 5] {
         let ex = run(&shapes::icosphere(subdivisions), &Params::default());
-        assert_eq!(ex.ecc.stats.complete, ex.ecc.len(), "every wave on a sphere is valid");
+        assert_eq!(
+            ex.ecc.stats.complete,
+            ex.ecc.len(),
+            "every wave on a sphere is valid"
+        );
         let r = ex.mesh.scale; // the unit sphere after normalisation
         let mut worst: f64 = 0.0;
         for v in (0..ex.ecc.len()).step_by(37) {
@@ -77,7 +85,10 @@ fn inside_out_sphere_is_reoriented() {
     let raw = shapes::icosphere(4);
     let ex = run(&raw, &Params::default());
     let flipped = run(&shapes::inverted(raw), &Params::default());
-    assert_eq!(flipped.mesh.stats.orientation.flipped_triangles, ex.mesh.triangles.len());
+    assert_eq!(
+        flipped.mesh.stats.orientation.flipped_triangles,
+        ex.mesh.triangles.len()
+    );
     assert!(flipped.ecc.vectors().eq(ex.ecc.vectors()));
     assert_eq!(flipped.ecc.region_size, ex.ecc.region_size);
 }
@@ -127,12 +138,21 @@ fn concave_bowl_gives_minus_g_over_2r() {
     for subdivisions in [4, 5] {
         let raw = shapes::bowl(subdivisions);
         let ex = run(&raw, &Params::default());
-        assert_eq!(ex.mesh.stats.orientation.flipped_triangles, 0, "open meshes keep their winding");
+        assert_eq!(
+            ex.mesh.stats.orientation.flipped_triangles, 0,
+            "open meshes keep their winding"
+        );
         let r = ex.mesh.scale;
-        assert!((r - 1.0 / 1.25f64.sqrt()).abs() < 0.01, "normalised radius {r}");
+        assert!(
+            (r - 1.0 / 1.25f64.sqrt()).abs() < 0.01,
+            "normalised radius {r}"
+        );
         let pole = vertex_at(&ex, DVec3::Z);
         let worst = check(&ex, pole, |g| -g / (2.0 * r), r, "bowl");
-        eprintln!("bowl {subdivisions}: worst error {worst:.5}, α = {:?}", ex.ecc.vector(pole));
+        eprintln!(
+            "bowl {subdivisions}: worst error {worst:.5}, α = {:?}",
+            ex.ecc.vector(pole)
+        );
     }
 }
 
@@ -163,7 +183,12 @@ fn rigid_motion_and_scale_leave_ecc_unchanged() {
         let inverse = motion.inverse();
         let mut worst: f64 = 0.0;
         for v in 0..moved.ecc.len() {
-            let original = vertex_at(&ex, inverse.transform_point3(moved.mesh.input_positions[v]).round_to(&raw));
+            let original = vertex_at(
+                &ex,
+                inverse
+                    .transform_point3(moved.mesh.input_positions[v])
+                    .round_to(&raw),
+            );
             for (a, b) in moved.ecc.vector(v).iter().zip(ex.ecc.vector(original)) {
                 worst = worst.max((a - b).abs());
             }
@@ -201,7 +226,37 @@ fn one_and_two_threads_give_identical_ecc() {
     let (one, two) = (on(1), on(2));
     assert_eq!((one.ecc.stats.threads, two.ecc.stats.threads), (1, 2));
     let bits = |ex: &Extraction| -> Vec<u64> {
-        ex.ecc.vectors().flatten().chain(&ex.ecc.region_size).map(|a| a.to_bits()).collect()
+        ex.ecc
+            .vectors()
+            .flatten()
+            .chain(&ex.ecc.region_size)
+            .map(|a| a.to_bits())
+            .collect()
     };
     assert_eq!(bits(&one), bits(&two));
+}
+
+/// SPEC §1.2: exporters split vertices at seams; welding must undo it. The CAPOD horse as OBJ
+/// (346 vertices) and as GLB with every triangle's corners split (2064 vertices) must give
+/// the same welded mesh and the same ECC, bit for bit.
+#[test]
+fn obj_and_seam_split_glb_give_the_same_mesh_and_ecc() {
+    let fixtures = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures");
+    let load = |name: &str| {
+        salient::extract::extract_path(
+            &fixtures.join(name),
+            &Params::default(),
+            &Default::default(),
+        )
+        .unwrap_or_else(|e| panic!("{name}: {e}"))
+    };
+    let obj = load("capod_horse_m155.obj");
+    let glb = load("capod_horse_m155_split.glb");
+    assert_eq!(obj.mesh.stats.input_vertices, 346);
+    assert_eq!(glb.mesh.stats.input_vertices, 2064);
+    assert_eq!(glb.mesh.stats.welded_vertices, 346);
+    assert_eq!(obj.mesh.input_positions, glb.mesh.input_positions);
+    assert_eq!(obj.mesh.triangles, glb.mesh.triangles);
+    assert!(obj.ecc.vectors().eq(glb.ecc.vectors()));
+    assert_eq!(obj.ecc.region_size, glb.ecc.region_size);
 }

@@ -54,7 +54,8 @@ pub fn orient(positions: &[DVec3], triangles: &mut [[u32; 3]]) -> OrientStats {
                 let g = g as usize;
                 // Two faces agree when they walk their shared edge in opposite directions.
                 let (a, b) = (triangles[f][k], triangles[f][(k + 1) % 3]);
-                let same_direction = (0..3).any(|j| triangles[g][j] == a && triangles[g][(j + 1) % 3] == b);
+                let same_direction =
+                    (0..3).any(|j| triangles[g][j] == a && triangles[g][(j + 1) % 3] == b);
                 let wanted = flip[f] ^ same_direction;
                 if !seen[g] {
                     seen[g] = true;

@@ -80,7 +80,10 @@ pub fn prepare(raw: &RawMesh, params: &MeshParams) -> Result<PreparedMesh> {
 
     let clock = Instant::now();
     let (centre, scale) = normalisation(&input_positions, &triangles);
-    let positions = input_positions.iter().map(|&p| (p - centre) * scale).collect();
+    let positions = input_positions
+        .iter()
+        .map(|&p| (p - centre) * scale)
+        .collect();
     stats.normalise_seconds = clock.elapsed().as_secs_f64();
     stats.vertices = input_positions.len();
     stats.triangles = triangles.len();

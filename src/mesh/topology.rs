@@ -98,13 +98,17 @@ impl Topology {
             face_start,
             vertex_faces,
             faces: face_neighbours(triangles),
-            vertex_normals: vertex_normals.into_iter().map(|v| v.normalize_or_zero()).collect(),
+            vertex_normals: vertex_normals
+                .into_iter()
+                .map(|v| v.normalize_or_zero())
+                .collect(),
         }
     }
 
     /// Neighbours of `v` with the lengths of the edges to them.
     pub fn neighbours(&self, v: u32) -> impl Iterator<Item = (u32, f64)> + '_ {
-        let range = self.vertex_start[v as usize] as usize..self.vertex_start[v as usize + 1] as usize;
+        let range =
+            self.vertex_start[v as usize] as usize..self.vertex_start[v as usize + 1] as usize;
         self.vertex_neighbours[range.clone()]
             .iter()
             .copied()
@@ -113,7 +117,8 @@ impl Topology {
 
     /// Faces incident to `v`.
     pub fn faces_of(&self, v: u32) -> &[u32] {
-        &self.vertex_faces[self.face_start[v as usize] as usize..self.face_start[v as usize + 1] as usize]
+        &self.vertex_faces
+            [self.face_start[v as usize] as usize..self.face_start[v as usize + 1] as usize]
     }
 
     /// Mean edge length, a measure of the mesh's resolution.

@@ -28,10 +28,14 @@ pub fn weld(raw: &RawMesh, tolerance: f64) -> Result<Welded> {
     }
     let (min, max) = bounds(&raw.positions);
     let diagonal = (max - min).length();
-    let quantum = tolerance * diagonal;
-    if !(quantum > 0.0) {
+    if diagonal == 0.0 {
         return Err(Error::TooFewVertices { count: 1 });
     }
+    // Areas and volumes go up to the cube of the extent: keep them inside f64's range.
+    if !(1e-100..=1e100).contains(&diagonal) {
+        return Err(Error::ExtentOutOfRange { diagonal });
+    }
+    let quantum = tolerance * diagonal;
     let key = |p: DVec3| {
         let q = ((p - min) / quantum).round();
         (q.x as i64, q.y as i64, q.z as i64)
@@ -44,7 +48,13 @@ pub fn weld(raw: &RawMesh, tolerance: f64) -> Result<Welded> {
     let exact = |i: u32| {
         let p = raw.positions[i as usize];
         let k = key(p);
-        (morton(p, min, max), k, p.x.to_bits(), p.y.to_bits(), p.z.to_bits())
+        (
+            morton(p, min, max),
+            k,
+            p.x.to_bits(),
+            p.y.to_bits(),
+            p.z.to_bits(),
+        )
     };
     order.sort_unstable_by_key(|&i| exact(i));
     let mut remap = vec![0u32; raw.positions.len()];
@@ -66,7 +76,10 @@ pub fn weld(raw: &RawMesh, tolerance: f64) -> Result<Welded> {
     for t in &raw.triangles {
         let t = t.map(|v| remap[v as usize]);
         let [a, b, c] = t.map(|v| positions[v as usize]);
-        if t[0] == t[1] || t[1] == t[2] || t[0] == t[2] || (b - a).cross(c - a).length() <= area_floor
+        if t[0] == t[1]
+            || t[1] == t[2]
+            || t[0] == t[2]
+            || (b - a).cross(c - a).length() <= area_floor
         {
             degenerate_removed += 1;
         } else {
@@ -189,7 +202,8 @@ mod tests {
         let mut raw = RawMesh::default();
         for f in faces.iter().rev() {
             let base = raw.positions.len() as u32;
-            raw.positions.extend(f.iter().map(|&i| p[i] + DVec3::splat(1e-9)));
+            raw.positions
+                .extend(f.iter().map(|&i| p[i] + DVec3::splat(1e-9)));
             raw.triangles.push([base, base + 1, base + 2]);
         }
         raw
@@ -229,11 +243,17 @@ mod tests {
             positions: vec![DVec3::ZERO, DVec3::X, DVec3::Y],
             triangles: vec![[0, 1, 2]],
         };
-        assert!(matches!(weld(&raw, 1e-6), Err(Error::TooFewVertices { count: 3 })));
+        assert!(matches!(
+            weld(&raw, 1e-6),
+            Err(Error::TooFewVertices { count: 3 })
+        ));
         let flat = RawMesh {
             positions: vec![DVec3::ZERO, DVec3::X, DVec3::X * 2.0],
             triangles: vec![[0, 1, 2]],
         };
-        assert!(matches!(weld(&flat, 1e-6), Err(Error::OnlyDegenerate { count: 1 })));
+        assert!(matches!(
+            weld(&flat, 1e-6),
+            Err(Error::OnlyDegenerate { count: 1 })
+        ));
     }
 }

@@ -14,18 +14,43 @@ use salient::mesh::RawMesh;
 pub fn icosphere(subdivisions: u32) -> RawMesh {
     let t = (1.0 + 5f64.sqrt()) / 2.0;
     let mut positions: Vec<DVec3> = [
-        (-1.0, t, 0.0), (1.0, t, 0.0), (-1.0, -t, 0.0), (1.0, -t, 0.0),
-        (0.0, -1.0, t), (0.0, 1.0, t), (0.0, -1.0, -t), (0.0, 1.0, -t),
-        (t, 0.0, -1.0), (t, 0.0, 1.0), (-t, 0.0, -1.0), (-t, 0.0, 1.0),
+        (-1.0, t, 0.0),
+        (1.0, t, 0.0),
+        (-1.0, -t, 0.0),
+        (1.0, -t, 0.0),
+        (0.0, -1.0, t),
+        (0.0, 1.0, t),
+        (0.0, -1.0, -t),
+        (0.0, 1.0, -t),
+        (t, 0.0, -1.0),
+        (t, 0.0, 1.0),
+        (-t, 0.0, -1.0),
+        (-t, 0.0, 1.0),
     ]
     .iter()
     .map(|&(x, y, z)| DVec3::new(x, y, z).normalize())
     .collect();
     let mut triangles: Vec<[u32; 3]> = vec![
-        [0, 11, 5], [0, 5, 1], [0, 1, 7], [0, 7, 10], [0, 10, 11],
-        [1, 5, 9], [5, 11, 4], [11, 10, 2], [10, 7, 6], [7, 1, 8],
-        [3, 9, 4], [3, 4, 2], [3, 2, 6], [3, 6, 8], [3, 8, 9],
-        [4, 9, 5], [2, 4, 11], [6, 2, 10], [8, 6, 7], [9, 8, 1],
+        [0, 11, 5],
+        [0, 5, 1],
+        [0, 1, 7],
+        [0, 7, 10],
+        [0, 10, 11],
+        [1, 5, 9],
+        [5, 11, 4],
+        [11, 10, 2],
+        [10, 7, 6],
+        [7, 1, 8],
+        [3, 9, 4],
+        [3, 4, 2],
+        [3, 2, 6],
+        [3, 6, 8],
+        [3, 8, 9],
+        [4, 9, 5],
+        [2, 4, 11],
+        [6, 2, 10],
+        [8, 6, 7],
+        [9, 8, 1],
     ];
     let to_pole = DQuat::from_rotation_arc(positions[0], DVec3::Z);
     for p in &mut positions {
@@ -49,7 +74,10 @@ pub fn icosphere(subdivisions: u32) -> RawMesh {
         }
         triangles = next;
     }
-    RawMesh { positions, triangles }
+    RawMesh {
+        positions,
+        triangles,
+    }
 }
 
 /// Reverses the winding of every triangle.
@@ -104,7 +132,10 @@ pub fn plane(n: u32, seed: u64) -> RawMesh {
             }
         }
     }
-    RawMesh { positions, triangles }
+    RawMesh {
+        positions,
+        triangles,
+    }
 }
 
 /// A closed right circular cone of half-angle `beta`, apex (vertex 0) at (0, 0, 1), base at
@@ -118,7 +149,11 @@ pub fn cone(beta: f64, rings: u32, segments: u32) -> RawMesh {
         let shift = if r % 2 == 0 { 0.5 } else { 0.0 };
         for k in 0..segments {
             let phi = 2.0 * PI * (k as f64 + shift) / segments as f64;
-            positions.push(DVec3::new(s * radius * phi.cos(), s * radius * phi.sin(), 1.0 - s));
+            positions.push(DVec3::new(
+                s * radius * phi.cos(),
+                s * radius * phi.sin(),
+                1.0 - s,
+            ));
         }
     }
     let ring = |r: u32, k: u32| 1 + (r - 1) * segments + k % segments;
@@ -145,7 +180,10 @@ pub fn cone(beta: f64, rings: u32, segments: u32) -> RawMesh {
     for k in 0..segments {
         triangles.push([centre, ring(rings, k + 1), ring(rings, k)]);
     }
-    RawMesh { positions, triangles }
+    RawMesh {
+        positions,
+        triangles,
+    }
 }
 
 /// A random rotation, translation and uniform scale.
@@ -158,12 +196,20 @@ pub fn random_motion(seed: u64) -> DMat4 {
         rng.gen_range(-50.0..50.0),
         rng.gen_range(-50.0..50.0),
     );
-    DMat4::from_scale_rotation_translation(DVec3::splat(rng.gen_range(0.01..100.0)), rotation, translation)
+    DMat4::from_scale_rotation_translation(
+        DVec3::splat(rng.gen_range(0.01..100.0)),
+        rotation,
+        translation,
+    )
 }
 
 pub fn transformed(mesh: &RawMesh, m: DMat4) -> RawMesh {
     RawMesh {
-        positions: mesh.positions.iter().map(|&p| m.transform_point3(p)).collect(),
+        positions: mesh
+            .positions
+            .iter()
+            .map(|&p| m.transform_point3(p))
+            .collect(),
         triangles: mesh.triangles.clone(),
     }
 }

@@ -1,0 +1,323 @@
+//! Reading meshes from files and uploads (SPEC §1.1).
+//!
+//! Every format loader turns bytes into a [`RawMesh`] in the file's own coordinates (glTF node
+//! transforms applied); [`load_bytes`] then runs the checks common to all formats in one place:
+//! counts within [`Limits`], at least one triangle, indices in range, finite coordinates.
+//! Input is untrusted (uploads): loaders check declared counts against the limits and against
+//! the byte length before allocating, and malformed input is a typed [`Error`], never a panic.
+
+mod gltf;
+mod obj;
+mod off;
+mod ply;
+mod stl;
+
+use std::collections::HashMap;
+use std::fmt;
+use std::path::{Component, Path, PathBuf};
+
+use crate::error::{Error, Result};
+use crate::mesh::RawMesh;
+use crate::params::Limits;
+
+/// A supported mesh file format.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Format {
+    /// Wavefront OBJ (text).
+    Obj,
+    /// glTF 2.0 JSON (`.gltf`), buffers embedded as `data:` URIs or in sibling files.
+    Gltf,
+    /// Binary glTF 2.0 (`.glb`).
+    Glb,
+    /// Object File Format (text; binary OFF is refused).
+    Off,
+    /// Stanford PLY (text or binary).
+    Ply,
+    /// STereoLithography (text or binary).
+    Stl,
+}
+
+impl fmt::Display for Format {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(match self {
+            Format::Obj => "OBJ",
+            Format::Gltf => "glTF",
+            Format::Glb => "GLB",
+            Format::Off => "OFF",
+            Format::Ply => "PLY",
+            Format::Stl => "STL",
+        })
+    }
+}
+
+impl Format {
+    /// Every supported format.
+    pub const ALL: [Format; 6] = [
+        Format::Obj,
+        Format::Gltf,
+        Format::Glb,
+        Format::Off,
+        Format::Ply,
+        Format::Stl,
+    ];
+
+    /// The format of a file extension (without the dot, any case).
+    pub fn from_extension(ext: &str) -> Option<Format> {
+        match ext.to_ascii_lowercase().as_str() {
+            "obj" => Some(Format::Obj),
+            "gltf" => Some(Format::Gltf),
+            "glb" => Some(Format::Glb),
+            "off" => Some(Format::Off),
+            "ply" => Some(Format::Ply),
+            "stl" => Some(Format::Stl),
+            _ => None,
+        }
+    }
+
+    /// The format named by a path's extension.
+    pub fn from_path(path: &Path) -> Option<Format> {
+        Format::from_extension(path.extension()?.to_str()?)
+    }
+
+    /// The format of an HTTP `Content-Type` (parameters such as `; charset=utf-8` ignored).
+    /// Generic types (`application/octet-stream`, `text/plain`) give `None`: sniff instead.
+    pub fn from_content_type(content_type: &str) -> Option<Format> {
+        let essence = content_type.split(';').next()?.trim().to_ascii_lowercase();
+        match essence.as_str() {
+            "model/obj" | "application/x-obj" | "text/x-obj" => Some(Format::Obj),
+            "model/gltf+json" => Some(Format::Gltf),
+            "model/gltf-binary" => Some(Format::Glb),
+            "model/off" | "model/x-off" | "application/off" | "application/x-off" => {
+                Some(Format::Off)
+            }
+            "model/ply" | "model/x-ply" | "application/ply" | "application/x-ply" => {
+                Some(Format::Ply)
+            }
+            "model/stl"
+            | "model/x.stl-ascii"
+            | "model/x.stl-binary"
+            | "application/sla"
+            | "application/vnd.ms-pki.stl"
+            | "application/x-stl" => Some(Format::Stl),
+            _ => None,
+        }
+    }
+
+    /// Recognises a format from the first bytes (magic numbers and first keywords), for uploads
+    /// without a usable name or content type.
+    pub fn sniff(bytes: &[u8]) -> Option<Format> {
+        if bytes.starts_with(b"glTF") {
+            return Some(Format::Glb);
+        }
+        if stl::is_binary(bytes) {
+            return Some(Format::Stl);
+        }
+        let text = skip_bom_and_space(bytes);
+        if text.starts_with(b"{") {
+            return Some(Format::Gltf);
+        }
+        let first_word = text
+            .split(|b| b.is_ascii_whitespace())
+            .next()
+            .unwrap_or_default();
+        if first_word == b"ply" {
+            return Some(Format::Ply);
+        }
+        if off::is_header_keyword(first_word) {
+            return Some(Format::Off);
+        }
+        if first_word == b"solid" && contains(&text[..text.len().min(4096)], b"facet") {
+            return Some(Format::Stl);
+        }
+        if obj::looks_like_obj(text) {
+            return Some(Format::Obj);
+        }
+        None
+    }
+}
+
+/// External files a glTF may reference (sibling `.bin` buffers). Uploads supply them in memory,
+/// files on disk from their directory.
+pub trait Resources {
+    /// The bytes of `uri` (already percent-decoded), or `None` if it is not available.
+    fn get(&self, uri: &str) -> Option<Vec<u8>>;
+}
+
+/// No external resources: only self-contained files (GLB, `data:` URIs) load.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct NoResources;
+
+impl Resources for NoResources {
+    fn get(&self, _uri: &str) -> Option<Vec<u8>> {
+        None
+    }
+}
+
+/// Resources read from one directory. URIs that could leave it (absolute paths, `..`
+/// components, schemes or drive letters) are refused, which the loader reports as missing:
+/// a file must not make the service read arbitrary paths.
+#[derive(Debug, Clone)]
+pub struct DirResources(pub PathBuf);
+
+impl Resources for DirResources {
+    fn get(&self, uri: &str) -> Option<Vec<u8>> {
+        let relative = Path::new(uri);
+        let stays_inside = !uri.is_empty()
+            && !uri.contains(['\\', ':'])
+            && relative
+                .components()
+                .all(|c| matches!(c, Component::Normal(_) | Component::CurDir));
+        if !stays_inside {
+            return None;
+        }
+        std::fs::read(self.0.join(relative)).ok()
+    }
+}
+
+/// In-memory resources keyed by URI, e.g. the other parts of a multipart upload.
+impl Resources for HashMap<String, Vec<u8>> {
+    fn get(&self, uri: &str) -> Option<Vec<u8>> {
+        HashMap::get(self, uri).cloned()
+    }
+}
+
+/// Parses `bytes` as `format` and checks the result (SPEC §1.1). `resources` supplies the
+/// external buffers of a `.gltf`; other formats ignore it.
+pub fn load_bytes(
+    bytes: &[u8],
+    format: Format,
+    resources: &dyn Resources,
+    limits: &Limits,
+) -> Result<RawMesh> {
+    let mesh = match format {
+        Format::Obj => obj::load(bytes, limits)?,
+        Format::Gltf | Format::Glb => gltf::load(bytes, format, resources, limits)?,
+        Format::Off => off::load(bytes, limits)?,
+        Format::Ply => ply::load(bytes, limits)?,
+        Format::Stl => stl::load(bytes, limits)?,
+    };
+    check(mesh, limits)
+}
+
+/// Reads a mesh file. The format comes from the extension, else from the content; a `.gltf`'s
+/// external buffers are read from its directory.
+pub fn load_path(path: &Path, limits: &Limits) -> Result<RawMesh> {
+    let bytes = std::fs::read(path).map_err(|source| Error::Io {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    let format = Format::from_path(path)
+        .or_else(|| Format::sniff(&bytes))
+        .ok_or_else(|| Error::UnknownFormat(path.display().to_string()))?;
+    let dir = path.parent().unwrap_or(Path::new(".")).to_path_buf();
+    load_bytes(&bytes, format, &DirResources(dir), limits)
+}
+
+/// The checks common to all formats, in one place.
+fn check(mesh: RawMesh, limits: &Limits) -> Result<RawMesh> {
+    check_limit("vertices", mesh.positions.len(), limits.max_input_vertices)?;
+    check_limit(
+        "triangles",
+        mesh.triangles.len(),
+        limits.max_input_triangles,
+    )?;
+    if mesh.triangles.is_empty() {
+        return Err(Error::NoTriangles);
+    }
+    let vertex_count = mesh.positions.len();
+    for (face, triangle) in mesh.triangles.iter().enumerate() {
+        if let Some(&index) = triangle.iter().find(|&&i| i as usize >= vertex_count) {
+            return Err(Error::IndexOutOfRange {
+                face,
+                index: index.into(),
+                vertex_count,
+            });
+        }
+    }
+    if let Some(vertex) = mesh.positions.iter().position(|p| !p.is_finite()) {
+        return Err(Error::NonFinite { vertex });
+    }
+    Ok(mesh)
+}
+
+/// `Err(TooLarge)` if `count` exceeds `limit`.
+fn check_limit(what: &'static str, count: usize, limit: usize) -> Result<()> {
+    if count > limit {
+        return Err(Error::TooLarge { what, count, limit });
+    }
+    Ok(())
+}
+
+/// `n` as a vertex index, for offsets of merged parts.
+fn vertex_id(n: usize) -> Result<u32> {
+    u32::try_from(n).map_err(|_| Error::TooLarge {
+        what: "vertices",
+        count: n,
+        limit: u32::MAX as usize,
+    })
+}
+
+/// A [`Error::Parse`] for `format`.
+fn parse_error(format: Format, message: impl Into<String>) -> Error {
+    Error::Parse {
+        format,
+        message: message.into(),
+    }
+}
+
+/// Appends the fan triangulation `(c0, c_k, c_k+1)` of polygon number `face` (OFF and PLY),
+/// checking every corner against `vertex_count` and the running triangle count against the
+/// limit. Points and lines (fewer than 3 corners) add nothing.
+fn push_fan(
+    triangles: &mut Vec<[u32; 3]>,
+    face: usize,
+    corners: &[u64],
+    vertex_count: usize,
+    limits: &Limits,
+) -> Result<()> {
+    let id = |index: u64| {
+        u32::try_from(index)
+            .ok()
+            .filter(|&i| (i as usize) < vertex_count)
+            .ok_or(Error::IndexOutOfRange {
+                face,
+                index,
+                vertex_count,
+            })
+    };
+    let [first, second, rest @ ..] = corners else {
+        return Ok(());
+    };
+    if rest.is_empty() {
+        return Ok(());
+    }
+    check_limit(
+        "triangles",
+        triangles.len().saturating_add(rest.len()),
+        limits.max_input_triangles,
+    )?;
+    let first = id(*first)?;
+    let mut previous = id(*second)?;
+    for &corner in rest {
+        let current = id(corner)?;
+        triangles.push([first, previous, current]);
+        previous = current;
+    }
+    Ok(())
+}
+
+/// The bytes after a UTF-8 byte-order mark and leading whitespace.
+fn skip_bom_and_space(bytes: &[u8]) -> &[u8] {
+    let bytes = bytes.strip_prefix(b"\xEF\xBB\xBF").unwrap_or(bytes);
+    let start = bytes
+        .iter()
+        .position(|b| !b.is_ascii_whitespace())
+        .unwrap_or(bytes.len());
+    &bytes[start..]
+}
+
+/// Whether `needle` occurs in `haystack`.
+fn contains(haystack: &[u8], needle: &[u8]) -> bool {
+    haystack.windows(needle.len()).any(|w| w == needle)
+}
