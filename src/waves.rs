@@ -48,9 +48,11 @@ pub struct Wave {
 impl Wave {
     /// The SPEC §2.3 validity rules; `None` means valid.
     pub fn defect(&self, flat_max: f64) -> Option<WaveDefect> {
+        // A wave cut by the boundary into several pieces counts as open: the boundary is
+        // the cause.
         match self.loops {
             0 => Some(WaveDefect::Missing),
-            1 if !self.closed => Some(WaveDefect::Open),
+            _ if !self.closed => Some(WaveDefect::Open),
             1 if self.points.len() < 3 => Some(WaveDefect::TooFewPoints),
             1 if self.flatness > flat_max => Some(WaveDefect::NotFlat),
             1 => None,
@@ -228,48 +230,23 @@ impl WaveTracer {
         self.stamp[f0 as usize] = self.generation;
         let start = points.len();
         let inside = walk.inside(f0);
-        let exit0 = (0..3)
-            .find(|&k| !inside[k] && inside[(k + 1) % 3])
-            .unwrap_or(0);
-        let entry0 = (0..3)
-            .find(|&k| inside[k] && !inside[(k + 1) % 3])
-            .unwrap_or(0);
-        let mut consistent = true;
-
-        let (mut face, mut edge) = (f0, exit0);
-        loop {
-            points.push(walk.iso_point(face, edge));
-            let next = walk.neighbours[face as usize][edge];
-            if next == f0 {
-                return (true, consistent);
-            }
-            if next == NO_FACE || self.stamp[next as usize] == self.generation {
-                break;
-            }
-            self.stamp[next as usize] = self.generation;
-            let (shared, agrees) = walk.shared_edge(face, edge, next);
-            consistent &= agrees;
-            face = next;
-            edge = walk.other_crossing(face, shared);
+        let crossing = |from_inside: bool| {
+            (0..3)
+                .find(|&k| inside[k] == from_inside && inside[(k + 1) % 3] != from_inside)
+                .unwrap_or(0)
+        };
+        let (exit, entry) = (crossing(false), crossing(true));
+        let stamps = (&mut self.stamp[..], self.generation);
+        let (closed, forward) = walk.follow(stamps, f0, exit, points);
+        if closed {
+            return (true, forward);
         }
-
         // Open: walk back from f0 through its entry edge and prepend that part.
         self.backward.clear();
-        let (mut face, mut edge) = (f0, entry0);
-        loop {
-            self.backward.push(walk.iso_point(face, edge));
-            let next = walk.neighbours[face as usize][edge];
-            if next == NO_FACE || self.stamp[next as usize] == self.generation {
-                break;
-            }
-            self.stamp[next as usize] = self.generation;
-            let (shared, agrees) = walk.shared_edge(face, edge, next);
-            consistent &= agrees;
-            face = next;
-            edge = walk.other_crossing(face, shared);
-        }
+        let stamps = (&mut self.stamp[..], self.generation);
+        let (_, backward) = walk.follow(stamps, f0, entry, &mut self.backward);
         points.splice(start..start, self.backward.iter().rev().copied());
-        (false, consistent)
+        (false, forward && backward)
     }
 }
 
@@ -285,6 +262,36 @@ struct Walk<'a> {
 impl Walk<'_> {
     fn inside(&self, f: u32) -> [bool; 3] {
         self.triangles[f as usize].map(|v| self.distances.get(v) < self.g)
+    }
+
+    /// Follows the iso-line from face `f0` out through its edge `edge`, face by face, until
+    /// it comes back to `f0` (closed), reaches a boundary or non-manifold edge, or meets a
+    /// face already walked (open). Faces walked are stamped. Returns whether it closed and
+    /// whether every face agreed with the winding of the one before.
+    fn follow(
+        &self,
+        (stamp, generation): (&mut [u32], u32),
+        f0: u32,
+        edge: usize,
+        out: &mut Vec<DVec3>,
+    ) -> (bool, bool) {
+        let (mut face, mut edge) = (f0, edge);
+        let mut consistent = true;
+        loop {
+            out.push(self.iso_point(face, edge));
+            let next = self.neighbours[face as usize][edge];
+            if next == f0 {
+                return (true, consistent);
+            }
+            if next == NO_FACE || stamp[next as usize] == generation {
+                return (false, consistent);
+            }
+            stamp[next as usize] = generation;
+            let (shared, agrees) = self.shared_edge(face, edge, next);
+            consistent &= agrees;
+            face = next;
+            edge = self.other_crossing(face, shared);
+        }
     }
 
     /// The iso-point on edge `k` of face `f`, interpolated from its inner end, so both faces

@@ -260,3 +260,31 @@ fn obj_and_seam_split_glb_give_the_same_mesh_and_ecc() {
     assert!(obj.ecc.vectors().eq(glb.ecc.vectors()));
     assert_eq!(obj.ecc.region_size, glb.ecc.region_size);
 }
+
+/// SPEC §2.3: on a thin tube the iso-lines wrap around and split into two loops once `g`
+/// passes half the circumference; the region shrinks to the last single-loop wave.
+#[test]
+fn branching_waves_shrink_the_region() {
+    let ex = run(&shapes::tube(0.03, 200, 16), &Params::default());
+    let half_circumference = std::f64::consts::PI * 0.03 * ex.mesh.scale;
+    assert!(ex.ecc.stats.first_defect.branching > 0);
+    let middle = vertex_at(&ex, DVec3::new(0.03, 0.0, 2.0 * 100.0 / 199.0 - 1.0));
+    let size = ex.ecc.region_size[middle];
+    assert!(
+        size > 0.0 && size <= half_circumference + 1e-9 && size >= half_circumference - 0.06,
+        "region {size}, half circumference {half_circumference}"
+    );
+}
+
+/// SPEC §2.3: a wave that reaches the mesh boundary is open, hence invalid; a boundary vertex
+/// has an open first wave and gets ECC 0 and region 0.
+#[test]
+fn boundary_vertices_get_flat_ecc() {
+    let ex = run(&shapes::plane(20, 1), &Params::default());
+    let corner = vertex_at(&ex, DVec3::new(-1.0, -1.0, 0.0));
+    assert_eq!(ex.ecc.region_size[corner], 0.0);
+    assert!(ex.ecc.vector(corner).iter().all(|&a| a == 0.0));
+    assert!(ex.ecc.stats.wave1_invalid > 0);
+    assert!(ex.ecc.stats.first_defect.open > 0);
+    assert_eq!(ex.ecc.stats.first_defect.branching, 0);
+}

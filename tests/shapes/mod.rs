@@ -213,3 +213,36 @@ pub fn transformed(mesh: &RawMesh, m: DMat4) -> RawMesh {
         triangles: mesh.triangles.clone(),
     }
 }
+
+/// A closed tube along z: radius `radius`, length 2, `rings` × `segments` vertices, with flat
+/// caps.
+pub fn tube(radius: f64, rings: u32, segments: u32) -> RawMesh {
+    let mut positions = Vec::new();
+    for r in 0..rings {
+        let z = -1.0 + 2.0 * r as f64 / (rings - 1) as f64;
+        for k in 0..segments {
+            let phi = 2.0 * PI * k as f64 / segments as f64;
+            positions.push(DVec3::new(radius * phi.cos(), radius * phi.sin(), z));
+        }
+    }
+    let at = |r: u32, k: u32| r * segments + k % segments;
+    let mut triangles = Vec::new();
+    for r in 0..rings - 1 {
+        for k in 0..segments {
+            let (a, b, c, d) = (at(r, k), at(r, k + 1), at(r + 1, k), at(r + 1, k + 1));
+            triangles.extend([[a, b, d], [a, d, c]]);
+        }
+    }
+    for (r, z, flip) in [(0, -1.0, true), (rings - 1, 1.0, false)] {
+        positions.push(DVec3::new(0.0, 0.0, z));
+        let centre = positions.len() as u32 - 1;
+        for k in 0..segments {
+            let (a, b) = (at(r, k), at(r, k + 1));
+            triangles.push(if flip { [centre, b, a] } else { [centre, a, b] });
+        }
+    }
+    RawMesh {
+        positions,
+        triangles,
+    }
+}
