@@ -93,6 +93,28 @@ pub struct DefectCounts {
     pub not_flat: usize,
 }
 
+impl std::fmt::Display for DefectCounts {
+    /// `"256 branching, 19 not flat"`; `"none"` when all are zero.
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let parts: Vec<String> = [
+            (self.missing, "missing"),
+            (self.branching, "branching"),
+            (self.open, "open"),
+            (self.too_few_points, "too few points"),
+            (self.not_flat, "not flat"),
+        ]
+        .iter()
+        .filter(|(count, _)| *count > 0)
+        .map(|(count, what)| format!("{count} {what}"))
+        .collect();
+        if parts.is_empty() {
+            f.write_str("none")
+        } else {
+            f.write_str(&parts.join(", "))
+        }
+    }
+}
+
 impl DefectCounts {
     fn add(&mut self, defect: WaveDefect) {
         *match defect {

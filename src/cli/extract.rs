@@ -75,7 +75,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     )?;
     writeln!(
         out,
-        "  waves: {} complete, {} shrunk, {} with wave 1 invalid (first defects: {:?})",
+        "  waves: {} complete, {} shrunk, {} with wave 1 invalid (first invalid wave: {})",
         e.complete, e.shrunk, e.wave1_invalid, e.first_defect
     )?;
     writeln!(
