@@ -40,6 +40,16 @@ impl EccField {
         self.values.chunks_exact(self.waves)
     }
 
+    /// All vectors in one row-major `vertices × N` array.
+    pub fn values(&self) -> &[f64] {
+        &self.values
+    }
+
+    /// `N`, the length of each vector.
+    pub fn dimension(&self) -> usize {
+        self.waves
+    }
+
     pub fn len(&self) -> usize {
         self.region_size.len()
     }

@@ -59,6 +59,15 @@ pub enum Error {
     )]
     ExtentOutOfRange { diagonal: f64 },
 
+    /// Stored signature bytes cannot be decoded.
+    #[error("corrupt signature: {message}")]
+    CorruptSignature { message: String },
+
+    /// A stored signature was written by an incompatible version of the binary format;
+    /// re-extract it from the mesh.
+    #[error("signature format {found} is not supported (this version reads {supported}); re-extract the model")]
+    SignatureFormat { found: u16, supported: u16 },
+
     /// A parameter is outside the range the method is defined for.
     #[error("invalid parameter `{name}`: {message}")]
     InvalidParameter {

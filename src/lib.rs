@@ -5,15 +5,31 @@
 //! - [`geodesic`]: local Dijkstra geodesics bounded by `D_g` (§2.1);
 //! - [`waves`]: geodesic iso-lines traced into closed loops, their validity (§2.2–2.3);
 //! - [`ecc`]: the extended cone-curvature vector of every vertex (§2.4);
-//! - [`extract`]: the pipeline from a loaded mesh to per-vertex ECC, with statistics.
+//! - [`extract`]: the pipeline from a loaded mesh to per-vertex ECC, with statistics;
+//! - [`salient`]: k-means candidates, non-maximum suppression, salient regions (§3);
+//! - [`descriptor`]: D2 shape distributions of regions and of whole meshes (§4, §6);
+//! - [`signature`]: a model's features, parameters and statistics; JSON and binary (§4);
+//! - [`emd`]: exact Earth Mover's Distance by the transportation simplex (§5);
+//! - [`similarity`]: ground distance, penalised EMD, D2 baseline distance, lower bound (§5–6);
+//! - [`rank`]: top-k ranking of an in-memory collection with bound-based pruning.
 
+pub mod descriptor;
 pub mod ecc;
+pub mod emd;
 pub mod error;
 pub mod extract;
 pub mod geodesic;
 pub mod mesh;
 pub mod params;
+pub mod rank;
+pub mod salient;
+pub mod signature;
+pub mod similarity;
 pub mod waves;
 
 pub use error::{Error, Result};
-pub use params::{EccParams, HeightRule, Limits, MeshParams, Params};
+pub use params::{
+    CandidateRule, D2Params, EccParams, HeightRule, Limits, MeshParams, Params, RegionRule,
+    SalientParams, SimilarityParams,
+};
+pub use signature::{Feature, Signature};

@@ -17,6 +17,9 @@ pub struct Params {
     pub version: u32,
     pub mesh: MeshParams,
     pub ecc: EccParams,
+    pub salient: SalientParams,
+    pub d2: D2Params,
+    pub similarity: SimilarityParams,
 }
 
 impl Default for Params {
@@ -25,6 +28,9 @@ impl Default for Params {
             version: PARAMS_VERSION,
             mesh: MeshParams::default(),
             ecc: EccParams::default(),
+            salient: SalientParams::default(),
+            d2: D2Params::default(),
+            similarity: SimilarityParams::default(),
         }
     }
 }
@@ -33,31 +39,63 @@ impl Params {
     /// Checks that every value is in the range the method is defined for, so that a bad
     /// parameter file is a clear error rather than a panic or a meaningless signature.
     pub fn validate(&self) -> Result<()> {
-        let checks: [(bool, &'static str, &'static str); 5] = [
+        let (m, e, s) = (&self.mesh, &self.ecc, &self.salient);
+        let checks = [
             (
-                self.mesh.weld_tolerance > 0.0 && self.mesh.weld_tolerance < 0.1,
+                m.weld_tolerance > 0.0 && m.weld_tolerance < 0.1,
                 "mesh.weld_tolerance",
                 "must be in (0, 0.1)",
             ),
             (
-                self.mesh.max_vertices >= 4,
+                m.max_vertices >= 4,
                 "mesh.max_vertices",
                 "must be at least 4",
             ),
             (
-                self.ecc.local_size > 0.0 && self.ecc.local_size <= 2.0,
+                e.local_size > 0.0 && e.local_size <= 2.0,
                 "ecc.local_size",
                 "must be in (0, 2]",
             ),
             (
-                (1..=64).contains(&self.ecc.waves),
+                (1..=64).contains(&e.waves),
                 "ecc.waves",
                 "must be between 1 and 64",
             ),
+            (e.flat_max >= 0.0, "ecc.flat_max", "must not be negative"),
             (
-                self.ecc.flat_max >= 0.0,
-                "ecc.flat_max",
+                (1..=64).contains(&s.clusters),
+                "salient.clusters",
+                "must be between 1 and 64",
+            ),
+            (
+                s.suppression_distance >= 0.0,
+                "salient.suppression_distance",
                 "must not be negative",
+            ),
+            (
+                (0.0..=1.0).contains(&s.min_region_ratio),
+                "salient.min_region_ratio",
+                "must be in [0, 1]",
+            ),
+            (
+                (1..=1024).contains(&s.max_features),
+                "salient.max_features",
+                "must be between 1 and 1024",
+            ),
+            (
+                (2..=100_000).contains(&self.d2.samples),
+                "d2.samples",
+                "must be between 2 and 100000",
+            ),
+            (
+                (1..=4096).contains(&self.d2.bins),
+                "d2.bins",
+                "must be between 1 and 4096",
+            ),
+            (
+                (0.0..=1.0).contains(&self.similarity.ecc_weight),
+                "similarity.ecc_weight",
+                "must be in [0, 1]",
             ),
         ];
         match checks.into_iter().find(|(ok, _, _)| !ok) {
@@ -139,6 +177,103 @@ impl Default for Limits {
         Self {
             max_input_vertices: 5_000_000,
             max_input_triangles: 10_000_000,
+        }
+    }
+}
+
+/// Which cluster supplies the salient-point candidates (SPEC §3.1).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum CandidateRule {
+    /// The cluster whose centre has the largest mean: convex tips, not deep pits.
+    #[default]
+    Mean,
+    /// The paper's "largest norm", which can pick a cluster of concave pits.
+    Norm,
+}
+
+/// Which salient regions are too small to keep (SPEC §3.4).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum RegionRule {
+    /// Region size `D` below `min_region_ratio` × the largest `D`.
+    #[default]
+    Size,
+    /// The paper's rule: region area below `min_region_ratio` × the largest area.
+    Area,
+}
+
+/// Salient points and regions (SPEC §3).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct SalientParams {
+    /// `K` of k-means.
+    pub clusters: usize,
+    /// Seed of the k-means++ initialisation.
+    pub seed: u64,
+    /// k-means runs from different seeds; the one of least inertia is kept.
+    pub restarts: usize,
+    pub candidates: CandidateRule,
+    /// `D_e`: candidates closer than this to an accepted one are suppressed.
+    pub suppression_distance: f64,
+    pub region_rule: RegionRule,
+    /// Regions below this fraction of the largest are dropped.
+    pub min_region_ratio: f64,
+    /// At most this many features, the most salient first. Not in the paper: it bounds the
+    /// signature size and the EMD cost on smooth shapes, where nearly every vertex is a
+    /// candidate.
+    pub max_features: usize,
+}
+
+impl Default for SalientParams {
+    fn default() -> Self {
+        Self {
+            clusters: 5,
+            seed: 0x05a1_1e47,
+            restarts: 8,
+            candidates: CandidateRule::Mean,
+            suppression_distance: 0.15,
+            region_rule: RegionRule::Size,
+            min_region_ratio: 0.3,
+            max_features: 32,
+        }
+    }
+}
+
+/// D2 shape distributions (SPEC §4 and §6): of each salient region over `[0, 2·D_g]`, and of
+/// the whole normalised mesh over `[0, 2]`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct D2Params {
+    /// Points sampled uniformly by area; all pairs are measured.
+    pub samples: usize,
+    pub bins: usize,
+}
+
+impl Default for D2Params {
+    fn default() -> Self {
+        Self {
+            samples: 2000,
+            bins: 64,
+        }
+    }
+}
+
+/// Comparing signatures (SPEC §5).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct SimilarityParams {
+    /// `W` of Eq. 11: weight of the ECC distance against the region D2 distance.
+    pub ecc_weight: f64,
+    /// Multiply the EMD by `max(m, n) / min(m, n)` (Eq. 13).
+    pub penalty: bool,
+}
+
+impl Default for SimilarityParams {
+    fn default() -> Self {
+        Self {
+            ecc_weight: 0.5,
+            penalty: true,
         }
     }
 }

@@ -73,7 +73,7 @@ fn extract_json_per_vertex_reports_input_coordinates() {
         assert!(alpha.iter().all(|a| a.as_f64().unwrap() > 0.0));
         assert_eq!(size.as_f64(), Some(0.3));
     }
-    let stats = &json["stats"];
+    let stats = &json["stats"]["extraction"];
     assert_eq!(stats["mesh"]["input_vertices"], 642);
     assert_eq!(stats["mesh"]["welded_vertices"], 642);
     assert_eq!(stats["mesh"]["triangles"], 1280);
@@ -118,8 +118,13 @@ fn simplification_is_reported() {
         String::from_utf8_lossy(&out.stderr)
     );
     let json: Value = serde_json::from_slice(&out.stdout).unwrap();
-    assert_eq!(json["stats"]["mesh"]["simplified"], true);
-    assert!(json["stats"]["mesh"]["vertices"].as_u64().unwrap() <= 1000);
+    assert_eq!(json["stats"]["extraction"]["mesh"]["simplified"], true);
+    assert!(
+        json["stats"]["extraction"]["mesh"]["vertices"]
+            .as_u64()
+            .unwrap()
+            <= 1000
+    );
     assert_eq!(json["params"]["mesh"]["max_vertices"], 1000);
 }
 

@@ -6,8 +6,9 @@ use std::path::PathBuf;
 use glam::DVec3;
 use serde::Serialize;
 
-use salient::extract::{extract_path, ExtractionStats};
-use salient::{Limits, Params};
+use salient::extract::extract_path;
+use salient::signature::describe;
+use salient::{Limits, Signature};
 
 #[derive(Debug, clap::Args)]
 pub struct Args {
@@ -26,8 +27,8 @@ pub struct Args {
 
 #[derive(Serialize)]
 struct Output<'a> {
-    params: &'a Params,
-    stats: &'a ExtractionStats,
+    #[serde(flatten)]
+    signature: &'a Signature,
     #[serde(skip_serializing_if = "Option::is_none")]
     positions: Option<Vec<[f64; 3]>>,
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -39,13 +40,13 @@ struct Output<'a> {
 pub fn run(args: Args) -> anyhow::Result<()> {
     let params = super::load_params(args.params.as_ref())?;
     let extraction = extract_path(&args.mesh, &params, &Limits::default())?;
-    let stats = &extraction.stats;
+    let signature = describe(&extraction, &params);
+    let stats = &signature.stats.extraction;
     let mut out = std::io::stdout().lock();
     if args.json {
         let per_vertex = args.per_vertex;
         let output = Output {
-            params: &params,
-            stats,
+            signature: &signature,
             positions: per_vertex.then(|| {
                 extraction
                     .mesh
@@ -78,9 +79,20 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         "  waves: {} complete, {} shrunk, {} with wave 1 invalid (first invalid wave: {})",
         e.complete, e.shrunk, e.wave1_invalid, e.first_defect
     )?;
+    let s = &signature.stats.salient;
     writeln!(
         out,
-        "  time: {:.3} s total (load {:.3}, weld {:.3}, orient {:.3}, simplify {:.3}, topology {:.3}, ECC {:.3} wall on {} threads: geodesics {:.3}, waves {:.3}, cones {:.3} CPU s)",
+        "  salient: {} features ({} candidates, {} after suppression, {} small regions dropped{}{})",
+        signature.features.len(),
+        s.candidates,
+        s.after_suppression,
+        s.small_regions_dropped,
+        if s.capped > 0 { format!(", {} over the cap", s.capped) } else { String::new() },
+        if s.fallback { ", fallback point" } else { "" },
+    )?;
+    writeln!(
+        out,
+        "  time: {:.3} s total (load {:.3}, weld {:.3}, orient {:.3}, simplify {:.3}, topology {:.3}, ECC {:.3} wall on {} threads: geodesics {:.3}, waves {:.3}, cones {:.3} CPU s; salient {:.3}, D2 {:.3})",
         stats.total_seconds,
         stats.load_seconds,
         m.weld_seconds,
@@ -91,7 +103,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         e.threads,
         e.geodesic_seconds,
         e.waves_seconds,
-        e.cone_seconds
+        e.cone_seconds,
+        signature.stats.salient_seconds,
+        signature.stats.d2_seconds,
     )?;
     Ok(())
 }

@@ -246,3 +246,25 @@ pub fn tube(radius: f64, rings: u32, segments: u32) -> RawMesh {
         triangles,
     }
 }
+
+/// A sphere of radius 0.5 with a smooth spike towards each of `tips` (radius up to 1.3): a
+/// "star" whose tips are the only salient places.
+pub fn star(subdivisions: u32, tips: &[DVec3]) -> RawMesh {
+    let mut mesh = icosphere(subdivisions);
+    for p in &mut mesh.positions {
+        let bump: f64 = tips
+            .iter()
+            .map(|t| {
+                let angle = p.angle_between(t.normalize());
+                (-(angle / 0.3).powi(2)).exp()
+            })
+            .sum();
+        *p *= 0.5 + 0.8 * bump;
+    }
+    mesh
+}
+
+/// Five tip directions, well apart.
+pub fn five_tips() -> Vec<DVec3> {
+    vec![DVec3::X, -DVec3::X, DVec3::Y, -DVec3::Y, DVec3::Z]
+}

@@ -1,0 +1,6 @@
+//! Shape descriptors other than ECC: the D2 shape distribution (Osada et al.), used for the
+//! salient regions (SPEC §4) and as the global baseline (SPEC §6).
+
+pub mod d2;
+
+pub use d2::{d2_histogram, histogram_l1};

@@ -1,0 +1,139 @@
+//! Salient points, signatures and their comparison on generated shapes with known answers
+//! (SPEC §3–5).
+
+mod shapes;
+
+use salient::signature::compute;
+use salient::similarity::compare;
+use salient::{Error, Params, Signature};
+
+fn signature(raw: &salient::mesh::RawMesh) -> Signature {
+    compute(raw, &Params::default()).expect("generated meshes extract")
+}
+
+#[test]
+fn one_salient_point_on_each_tip_of_a_star() {
+    let tips = shapes::five_tips();
+    let s = signature(&shapes::star(4, &tips));
+    assert_eq!(s.features.len(), tips.len(), "{:?}", s.stats.salient);
+    for tip in &tips {
+        let near: Vec<_> = s
+            .features
+            .iter()
+            .filter(|f| glam::DVec3::from(f.position).angle_between(*tip) < 0.2)
+            .collect();
+        assert_eq!(near.len(), 1, "tip {tip}");
+    }
+    for f in &s.features {
+        // On a tip: far from the body (radius 0.5) and sharply convex.
+        assert!(glam::DVec3::from(f.position).length() > 1.0);
+        assert!(f.ecc.iter().sum::<f64>() > 0.0);
+        assert!((f.d2.iter().sum::<f64>() - 1.0).abs() < 1e-9);
+        assert!(f.region_area > 0.0 && f.region_size > 0.0);
+    }
+}
+
+#[test]
+fn the_same_mesh_gives_the_same_bytes_on_any_thread_count() {
+    let raw = shapes::star(4, &shapes::five_tips());
+    let on = |threads| {
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap()
+            .install(|| signature(&raw))
+    };
+    let (one, two, again) = (on(1), on(2), on(2));
+    let strip = |mut s: Signature| {
+        // Timings differ from run to run; everything else must not.
+        s.stats = Default::default();
+        s.to_bytes()
+    };
+    let bytes = strip(one);
+    assert_eq!(bytes, strip(two));
+    assert_eq!(bytes, strip(again));
+}
+
+#[test]
+fn rigid_motion_and_scale_barely_change_the_signature() {
+    let star = shapes::star(4, &shapes::five_tips());
+    let original = signature(&star);
+    let moved = signature(&shapes::transformed(&star, shapes::random_motion(9)));
+    let others = [
+        signature(&shapes::cone(0.5, 40, 48)),
+        signature(&shapes::tube(0.2, 60, 24)),
+        signature(&shapes::icosphere(4)),
+    ];
+    let params = Params::default().similarity;
+    let same = compare(&original, &moved, &params).sim;
+    let different = others
+        .iter()
+        .map(|o| compare(&original, o, &params).sim)
+        .fold(f64::INFINITY, f64::min);
+    eprintln!("SIM moved {same:.5}, nearest other shape {different:.5}");
+    assert_eq!(moved.features.len(), original.features.len());
+    assert!(same < 0.02, "{same}");
+    assert!(same * 10.0 < different, "{same} vs {different}");
+    assert_eq!(compare(&original, &original, &params).sim, 0.0);
+}
+
+#[test]
+fn penalty_multiplies_the_emd() {
+    let five = signature(&shapes::star(4, &shapes::five_tips()));
+    let three = signature(&shapes::star(4, &shapes::five_tips()[..3]));
+    let mut params = Params::default().similarity;
+    let with = compare(&five, &three, &params);
+    params.penalty = false;
+    let without = compare(&five, &three, &params);
+    assert_eq!((with.m, with.n), (5, 3));
+    assert_eq!(with.emd, without.emd);
+    assert!((with.sim - with.emd * 5.0 / 3.0).abs() < 1e-12);
+    assert_eq!(without.sim, without.emd);
+}
+
+#[test]
+fn binary_form_round_trips_compactly_and_refuses_garbage() {
+    let fixture = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/fixtures/capod_horse_m155.obj");
+    let raw = salient::mesh::load_path(&fixture, &Default::default()).unwrap();
+    let s = signature(&raw);
+    let bytes = s.to_bytes();
+    eprintln!("{} features, {} bytes", s.features.len(), bytes.len());
+    assert!(bytes.len() < 4096);
+    let back = Signature::from_bytes(&bytes).unwrap();
+    assert_eq!(back.mesh_hash, s.mesh_hash);
+    assert_eq!(back.params, s.params);
+    assert_eq!(back.features.len(), s.features.len());
+    for (a, b) in back.features.iter().zip(&s.features) {
+        assert_eq!(a.vertex, b.vertex);
+        assert!(a.ecc.iter().zip(&b.ecc).all(|(x, y)| (x - y).abs() < 1e-6));
+        assert!(a
+            .d2
+            .iter()
+            .zip(&b.d2)
+            .all(|(x, y)| (x - y).abs() <= 0.5 / 65535.0 + 1e-12));
+    }
+    // Re-encoding the decoded form is stable.
+    assert_eq!(back.to_bytes(), bytes);
+    // Comparing through the binary form changes nothing that matters.
+    let params = Params::default().similarity;
+    assert!(compare(&back, &s, &params).sim < 1e-4);
+
+    assert!(matches!(
+        Signature::from_bytes(b"nope"),
+        Err(Error::CorruptSignature { .. })
+    ));
+    assert!(matches!(
+        Signature::from_bytes(&bytes[..bytes.len() / 2]),
+        Err(Error::CorruptSignature { .. })
+    ));
+    let mut future = bytes.clone();
+    future[4] = 99;
+    assert!(matches!(
+        Signature::from_bytes(&future),
+        Err(Error::SignatureFormat { found: 99, .. })
+    ));
+
+    let json = serde_json::to_string(&s).unwrap();
+    assert_eq!(serde_json::from_str::<Signature>(&json).unwrap(), s);
+}
