@@ -4,13 +4,13 @@
 //! takes uniform weights, `rust-optimal-transport` is an unmaintained C++ binding, and an
 //! approximation (Sinkhorn) would change rankings. Masses are integers — a model's `m`
 //! features of weight `1/m` against `n` of weight `1/n` become supplies of `n` and demands
-//! of `m` — so feasibility and degeneracy are exact, and only costs are floating point.
+//! of `m` — so feasibility and degeneracy are decided exactly; only costs are floating point.
 //!
-//! The method is the textbook one (Hitchcock; Dantzig's transportation simplex, as in Rubner's
-//! reference EMD code): a north-west-corner basis spanning the `m + n` nodes, potentials
-//! `u_i + v_j = c_ij` on basic cells, the most negative reduced cost enters, the cycle it
-//! closes in the basis tree gives the leaving cell. After a run of degenerate pivots the
-//! choice falls back to Bland's smallest-index rule, which cannot cycle.
+//! The method is the textbook one (Dantzig's transportation simplex, as in Rubner's reference
+//! EMD code): a least-cost initial basis completed to a spanning tree of the `m + n` nodes,
+//! potentials `u_i + v_j = c_ij` on the tree, the most negative reduced cost enters, the cycle
+//! it closes in the tree gives the leaving cell. After a run of degenerate pivots the choice
+//! falls back to Bland's smallest-index rule, which cannot cycle.
 
 /// Minimum total cost of moving `supply` onto `demand` (equal totals) at `cost(i, j)` per
 /// unit, divided by the total mass: the EMD of Eq. 10.
@@ -18,16 +18,9 @@
 /// # Panics
 /// If the totals differ or are zero: callers build balanced problems.
 pub fn emd(supply: &[u64], demand: &[u64], cost: impl Fn(usize, usize) -> f64) -> f64 {
-    let total: u64 = supply.iter().sum();
-    assert!(
-        total > 0 && total == demand.iter().sum::<u64>(),
-        "EMD needs equal, non-zero total masses"
-    );
-    let (m, n) = (supply.len(), demand.len());
-    let c: Vec<f64> = (0..m * n).map(|k| cost(k / n, k % n)).collect();
-    let flow = Transport::new(m, n, &c).solve(supply, demand);
-    let work: f64 = flow.iter().map(|&(i, j, f)| f as f64 * c[i * n + j]).sum();
-    work / total as f64
+    let n = demand.len();
+    let matrix: Vec<f64> = (0..supply.len() * n).map(|k| cost(k / n, k % n)).collect();
+    emd_matrix(supply, demand, &matrix)
 }
 
 /// EMD between `m` and `n` equally weighted items (SPEC §5, Eq. 12).
@@ -35,198 +28,238 @@ pub fn emd_uniform(m: usize, n: usize, cost: impl Fn(usize, usize) -> f64) -> f6
     emd(&vec![n as u64; m], &vec![m as u64; n], cost)
 }
 
-struct Transport<'a> {
-    m: usize,
-    n: usize,
-    cost: &'a [f64],
+/// [`emd`] with the costs given as a row-major `supply.len() × demand.len()` matrix.
+pub fn emd_matrix(supply: &[u64], demand: &[u64], cost: &[f64]) -> f64 {
+    let total: u64 = supply.iter().sum();
+    assert!(
+        total > 0
+            && total == demand.iter().sum::<u64>()
+            && cost.len() == supply.len() * demand.len(),
+        "EMD needs equal, non-zero total masses and an m × n cost matrix"
+    );
+    let mut simplex = Simplex::new(supply, demand, cost);
+    simplex.solve();
+    simplex.work() / total as f64
 }
 
 /// A basic cell and its flow.
-#[derive(Clone, Copy)]
+#[derive(Debug, Clone, Copy)]
 struct Cell {
     i: usize,
     j: usize,
     flow: u64,
 }
 
-impl Transport<'_> {
-    fn new(m: usize, n: usize, cost: &[f64]) -> Transport<'_> {
-        Transport { m, n, cost }
+/// Tree nodes are rows `0..m` and columns `m..m + n`.
+struct Simplex<'a> {
+    m: usize,
+    n: usize,
+    cost: &'a [f64],
+    basis: Vec<Cell>,
+    /// Potentials of rows then columns, and the tree rooted at row 0: each node's parent and
+    /// the basis cell linking them, and its depth.
+    potential: Vec<f64>,
+    parent: Vec<(usize, usize)>,
+    depth: Vec<usize>,
+    adjacent: Vec<Vec<(usize, usize)>>,
+    queue: Vec<usize>,
+    is_basic: Vec<bool>,
+}
+
+impl<'a> Simplex<'a> {
+    fn new(supply: &[u64], demand: &[u64], cost: &'a [f64]) -> Self {
+        let (m, n) = (supply.len(), demand.len());
+        let mut simplex = Simplex {
+            m,
+            n,
+            cost,
+            basis: Vec::with_capacity(m + n - 1),
+            potential: vec![0.0; m + n],
+            parent: vec![(usize::MAX, usize::MAX); m + n],
+            depth: vec![0; m + n],
+            adjacent: vec![Vec::new(); m + n],
+            queue: Vec::with_capacity(m + n),
+            is_basic: vec![false; m * n],
+        };
+        simplex.least_cost_basis(supply, demand);
+        simplex
     }
 
-    /// Returns the basic cells `(i, j, flow)` of an optimal solution.
-    fn solve(&self, supply: &[u64], demand: &[u64]) -> Vec<(usize, usize, u64)> {
+    /// Least-cost method: fill the cheapest cells first. Each allocation exhausts a row or a
+    /// column, so the cells form a forest; zero-flow cells, cheapest first, then join its
+    /// trees into the spanning tree a basis needs (`m + n − 1` cells).
+    fn least_cost_basis(&mut self, supply: &[u64], demand: &[u64]) {
         let (m, n) = (self.m, self.n);
-        let mut basis = north_west(supply, demand);
+        let mut order: Vec<usize> = (0..m * n).collect();
+        order.sort_by(|&a, &b| self.cost[a].total_cmp(&self.cost[b]).then(a.cmp(&b)));
+        let (mut a, mut b) = (supply.to_vec(), demand.to_vec());
+        let mut component: Vec<usize> = (0..m + n).collect();
+        fn root(component: &mut [usize], mut x: usize) -> usize {
+            while component[x] != x {
+                component[x] = component[component[x]];
+                x = component[x];
+            }
+            x
+        }
+        for &k in &order {
+            let (i, j) = (k / n, k % n);
+            if a[i] > 0 && b[j] > 0 {
+                let flow = a[i].min(b[j]);
+                a[i] -= flow;
+                b[j] -= flow;
+                self.add(Cell { i, j, flow });
+                let (ri, rj) = (root(&mut component, i), root(&mut component, m + j));
+                component[ri] = rj;
+            }
+        }
+        for &k in &order {
+            if self.basis.len() == m + n - 1 {
+                break;
+            }
+            let (i, j) = (k / n, k % n);
+            let (ri, rj) = (root(&mut component, i), root(&mut component, m + j));
+            if ri != rj {
+                component[ri] = rj;
+                self.add(Cell { i, j, flow: 0 });
+            }
+        }
+    }
+
+    fn add(&mut self, cell: Cell) {
+        self.is_basic[cell.i * self.n + cell.j] = true;
+        self.basis.push(cell);
+    }
+
+    fn work(&self) -> f64 {
+        self.basis
+            .iter()
+            .map(|c| c.flow as f64 * self.cost[c.i * self.n + c.j])
+            .sum()
+    }
+
+    fn solve(&mut self) {
+        let (m, n) = (self.m, self.n);
         let scale = self.cost.iter().fold(0.0f64, |a, &c| a.max(c.abs()));
         let tolerance = 1e-12 * scale.max(f64::MIN_POSITIVE);
-        let mut u = vec![0.0; m];
-        let mut v = vec![0.0; n];
         let mut degenerate_run = 0;
-        // Each pivot either lowers the cost or is degenerate; Bland's rule bounds the latter.
+        // Bland's rule guarantees termination; the bound only guards against a bug.
         for _ in 0..100 * (m + n) * (m + n) {
-            self.potentials(&basis, &mut u, &mut v);
+            self.build_tree();
             let bland = degenerate_run > m + n;
-            let Some((ei, ej)) = self.entering(&basis, &u, &v, tolerance, bland) else {
-                break;
+            let Some((ei, ej)) = self.entering(tolerance, bland) else {
+                return;
             };
-            let cycle = cycle(&basis, m, ei, ej);
-            // Cells at odd positions of the cycle lose flow; the first smallest one leaves.
+            let cycle = self.cycle(ei, ej);
+            // Cells at odd positions lose flow; the first smallest one leaves.
             let (leave, theta) = cycle
                 .iter()
                 .skip(1)
                 .step_by(2)
-                .map(|&b| (b, basis[b].flow))
+                .map(|&b| (b, self.basis[b].flow))
                 .min_by_key(|&(b, flow)| {
-                    (
-                        flow,
-                        if bland {
-                            (basis[b].i, basis[b].j)
-                        } else {
-                            (0, 0)
-                        },
-                    )
+                    let cell = self.basis[b];
+                    (flow, if bland { (cell.i, cell.j) } else { (0, 0) })
                 })
-                .expect("a cycle has at least one losing cell");
+                .expect("a cycle has a losing cell");
             for (k, &b) in cycle.iter().enumerate().skip(1) {
                 if k % 2 == 1 {
-                    basis[b].flow -= theta;
+                    self.basis[b].flow -= theta;
                 } else {
-                    basis[b].flow += theta;
+                    self.basis[b].flow += theta;
                 }
             }
-            basis[leave] = Cell {
+            let old = self.basis[leave];
+            self.is_basic[old.i * n + old.j] = false;
+            self.is_basic[ei * n + ej] = true;
+            self.basis[leave] = Cell {
                 i: ei,
                 j: ej,
                 flow: theta,
             };
             degenerate_run = if theta == 0 { degenerate_run + 1 } else { 0 };
         }
-        basis.iter().map(|c| (c.i, c.j, c.flow)).collect()
     }
 
-    /// Solves `u_i + v_j = c_ij` over the basis tree, rooted at `u_0 = 0`.
-    fn potentials(&self, basis: &[Cell], u: &mut [f64], v: &mut [f64]) {
-        let (m, n) = (self.m, self.n);
-        let mut known = vec![false; m + n];
-        known[0] = true;
-        u[0] = 0.0;
-        let mut remaining = basis.len();
-        let mut done = vec![false; basis.len()];
-        // The basis is a spanning tree: each sweep fixes at least one more node.
-        while remaining > 0 {
-            for (b, cell) in basis.iter().enumerate() {
-                if done[b] {
+    /// Roots the basis tree at row 0 and solves `u_i + v_j = c_ij` along it (`u_0 = 0`).
+    fn build_tree(&mut self) {
+        let m = self.m;
+        for list in &mut self.adjacent {
+            list.clear();
+        }
+        for (b, c) in self.basis.iter().enumerate() {
+            self.adjacent[c.i].push((m + c.j, b));
+            self.adjacent[m + c.j].push((c.i, b));
+        }
+        self.queue.clear();
+        self.queue.push(0);
+        self.parent[0] = (usize::MAX, usize::MAX);
+        self.depth[0] = 0;
+        self.potential[0] = 0.0;
+        let mut head = 0;
+        while head < self.queue.len() {
+            let node = self.queue[head];
+            head += 1;
+            for &(next, b) in &self.adjacent[node] {
+                if next == self.parent[node].0 {
                     continue;
                 }
-                let c = self.cost[cell.i * n + cell.j];
-                if known[cell.i] {
-                    v[cell.j] = c - u[cell.i];
-                    known[m + cell.j] = true;
-                } else if known[m + cell.j] {
-                    u[cell.i] = c - v[cell.j];
-                    known[cell.i] = true;
-                } else {
-                    continue;
-                }
-                done[b] = true;
-                remaining -= 1;
+                let c = self.cost[self.basis[b].i * self.n + self.basis[b].j];
+                self.potential[next] = c - self.potential[node];
+                self.parent[next] = (node, b);
+                self.depth[next] = self.depth[node] + 1;
+                self.queue.push(next);
             }
         }
     }
 
-    /// The non-basic cell with the most negative reduced cost (or, under Bland's rule, the
-    /// first negative one), if any.
-    fn entering(
-        &self,
-        basis: &[Cell],
-        u: &[f64],
-        v: &[f64],
-        tolerance: f64,
-        bland: bool,
-    ) -> Option<(usize, usize)> {
-        let n = self.n;
-        let mut is_basic = vec![false; self.m * n];
-        for c in basis {
-            is_basic[c.i * n + c.j] = true;
-        }
+    /// The non-basic cell of most negative reduced cost `c_ij − u_i − v_j` (under Bland's rule
+    /// the first negative one), if any.
+    fn entering(&self, tolerance: f64, bland: bool) -> Option<(usize, usize)> {
+        let (m, n) = (self.m, self.n);
         let mut best: Option<(f64, usize, usize)> = None;
-        for i in 0..self.m {
-            for j in 0..n {
-                if is_basic[i * n + j] {
-                    continue;
-                }
-                let reduced = self.cost[i * n + j] - u[i] - v[j];
-                if reduced < -tolerance && best.is_none_or(|(r, _, _)| reduced < r) {
-                    best = Some((reduced, i, j));
+        for i in 0..m {
+            let row = &self.cost[i * n..(i + 1) * n];
+            let u = self.potential[i];
+            for (j, (&c, &v)) in row.iter().zip(&self.potential[m..]).enumerate() {
+                let reduced = c - u - v;
+                if reduced < -tolerance
+                    && !self.is_basic[i * n + j]
+                    && best.is_none_or(|(r, _, _)| reduced < r)
+                {
                     if bland {
                         return Some((i, j));
                     }
+                    best = Some((reduced, i, j));
                 }
             }
         }
         best.map(|(_, i, j)| (i, j))
     }
-}
 
-/// North-west-corner rule: a feasible basis of exactly `m + n - 1` cells forming a spanning
-/// tree (degenerate zero cells included), because each step advances exactly one index.
-fn north_west(supply: &[u64], demand: &[u64]) -> Vec<Cell> {
-    let (m, n) = (supply.len(), demand.len());
-    let (mut a, mut b) = (supply.to_vec(), demand.to_vec());
-    let (mut i, mut j) = (0, 0);
-    let mut basis = Vec::with_capacity(m + n - 1);
-    loop {
-        let flow = a[i].min(b[j]);
-        basis.push(Cell { i, j, flow });
-        a[i] -= flow;
-        b[j] -= flow;
-        if i == m - 1 && j == n - 1 {
-            break;
+    /// The cycle entering cell `(ei, ej)` closes in the tree, as basis indices after a
+    /// placeholder for the entering cell: `[entering, −, +, −, …, −]`, from column `ej` round
+    /// to row `ei` through their lowest common ancestor.
+    fn cycle(&self, ei: usize, ej: usize) -> Vec<usize> {
+        let (mut a, mut b) = (self.m + ej, ei);
+        let mut from_column = vec![usize::MAX];
+        let mut from_row = Vec::new();
+        while self.depth[a] > self.depth[b] {
+            from_column.push(self.parent[a].1);
+            a = self.parent[a].0;
         }
-        if (a[i] == 0 && i < m - 1) || j == n - 1 {
-            i += 1;
-        } else {
-            j += 1;
+        while self.depth[b] > self.depth[a] {
+            from_row.push(self.parent[b].1);
+            b = self.parent[b].0;
         }
-    }
-    basis
-}
-
-/// The cycle that entering cell `(ei, ej)` closes in the basis tree, as indices into `basis`
-/// after a placeholder for the entering cell itself: `[entering, −, +, −, …, −]`, walking from
-/// column `ej` back to row `ei`.
-fn cycle(basis: &[Cell], m: usize, ei: usize, ej: usize) -> Vec<usize> {
-    // Nodes: rows 0..m, columns m..; breadth-first search from row ei for column ej.
-    let nodes = m + basis.iter().map(|c| c.j + 1).max().unwrap_or(0).max(ej + 1);
-    let mut adjacent: Vec<Vec<(usize, usize)>> = vec![Vec::new(); nodes];
-    for (b, c) in basis.iter().enumerate() {
-        adjacent[c.i].push((m + c.j, b));
-        adjacent[m + c.j].push((c.i, b));
-    }
-    let mut parent: Vec<Option<(usize, usize)>> = vec![None; nodes];
-    let mut queue = std::collections::VecDeque::from([ei]);
-    let mut seen = vec![false; nodes];
-    seen[ei] = true;
-    while let Some(node) = queue.pop_front() {
-        if node == m + ej {
-            break;
+        while a != b {
+            from_column.push(self.parent[a].1);
+            a = self.parent[a].0;
+            from_row.push(self.parent[b].1);
+            b = self.parent[b].0;
         }
-        for &(next, b) in &adjacent[node] {
-            if !seen[next] {
-                seen[next] = true;
-                parent[next] = Some((node, b));
-                queue.push_back(next);
-            }
-        }
+        from_column.extend(from_row.into_iter().rev());
+        from_column
     }
-    let mut path = vec![usize::MAX];
-    let mut node = m + ej;
-    while let Some((previous, b)) = parent[node] {
-        path.push(b);
-        node = previous;
-    }
-    path
 }
 
 #[cfg(test)]

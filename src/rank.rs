@@ -15,7 +15,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::params::SimilarityParams;
 use crate::signature::Signature;
-use crate::similarity::{compare, d2_distance, lower_bound, Centroid};
+use crate::similarity::{compare, compare_costs, d2_distance, lower_bound, CostMatrix, Summary};
 
 /// How two models are compared.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize, Default)]
@@ -69,13 +69,17 @@ pub struct Ranking {
     pub hits: Vec<Hit>,
     /// Entries whose exact distance was computed.
     pub evaluated: usize,
-    /// Entries rejected by the lower bound alone.
+    /// Entries rejected by a lower bound without solving their EMD.
     pub pruned: usize,
 }
 
 /// An in-memory collection of signatures with what ranking precomputes for each.
-#[derive(Debug, Clone, Default)]
+///
+/// Summaries for the lower bound depend on the ground-distance weight `W`, so an index is
+/// built for one [`SimilarityParams`].
+#[derive(Debug, Clone)]
 pub struct Index {
+    params: SimilarityParams,
     entries: Vec<Entry>,
 }
 
@@ -83,25 +87,33 @@ pub struct Index {
 struct Entry {
     id: String,
     signature: Signature,
-    centroid: Centroid,
+    summary: Summary,
 }
 
 /// Entries whose exact distances are computed together (in parallel) between bound checks.
 const BATCH: usize = 64;
 
 impl Index {
-    pub fn new() -> Self {
-        Self::default()
+    pub fn new(params: SimilarityParams) -> Self {
+        Self {
+            params,
+            entries: Vec::new(),
+        }
     }
 
     /// Adds an entry; ids are expected to be unique.
     pub fn insert(&mut self, id: impl Into<String>, signature: Signature) {
-        let centroid = Centroid::of(&signature);
+        let summary = Summary::of(&signature, &self.params);
         self.entries.push(Entry {
             id: id.into(),
             signature,
-            centroid,
+            summary,
         });
+    }
+
+    /// The parameters the index compares with.
+    pub fn params(&self) -> &SimilarityParams {
+        &self.params
     }
 
     pub fn len(&self) -> usize {
@@ -113,15 +125,9 @@ impl Index {
     }
 
     /// The `k` entries nearest to `query`, nearest first, ties by id.
-    pub fn search(
-        &self,
-        query: &Signature,
-        k: usize,
-        method: Method,
-        params: &SimilarityParams,
-    ) -> Ranking {
+    pub fn search(&self, query: &Signature, k: usize, method: Method) -> Ranking {
         match method {
-            Method::Ecc => self.search_pruned(query, k, params),
+            Method::Ecc => self.search_pruned(query, k),
             Method::D2 => {
                 let mut hits: Vec<Hit> = self
                     .entries
@@ -143,13 +149,8 @@ impl Index {
     }
 
     /// Every entry's exact distance, no pruning: the reference the pruned search must match.
-    pub fn search_exhaustive(
-        &self,
-        query: &Signature,
-        k: usize,
-        method: Method,
-        params: &SimilarityParams,
-    ) -> Ranking {
+    pub fn search_exhaustive(&self, query: &Signature, k: usize, method: Method) -> Ranking {
+        let params = &self.params;
         let mut hits: Vec<Hit> = self
             .entries
             .par_iter()
@@ -167,7 +168,8 @@ impl Index {
         }
     }
 
-    fn search_pruned(&self, query: &Signature, k: usize, params: &SimilarityParams) -> Ranking {
+    fn search_pruned(&self, query: &Signature, k: usize) -> Ranking {
+        let params = &self.params;
         if k == 0 {
             return Ranking {
                 hits: Vec::new(),
@@ -175,12 +177,12 @@ impl Index {
                 pruned: self.entries.len(),
             };
         }
-        let centroid = Centroid::of(query);
+        let summary = Summary::of(query, params);
         let mut order: Vec<(f64, usize)> = self
             .entries
             .par_iter()
             .enumerate()
-            .map(|(i, e)| (lower_bound(&centroid, &e.centroid, params), i))
+            .map(|(i, e)| (lower_bound(&summary, &e.summary, params), i))
             .collect();
         order.par_sort_unstable_by(|a, b| {
             a.0.total_cmp(&b.0)
@@ -205,11 +207,19 @@ impl Index {
             if live.is_empty() {
                 break;
             }
-            evaluated += live.len();
-            best.par_extend(live.par_iter().map(|&i| Hit {
-                id: self.entries[i].id.clone(),
-                distance: compare(query, &self.entries[i].signature, params).sim,
-            }));
+            // Second, tighter bound from the ground distances, which the EMD then reuses.
+            let solved: Vec<Hit> = live
+                .par_iter()
+                .filter_map(|&i| {
+                    let costs = CostMatrix::new(query, &self.entries[i].signature, params);
+                    (costs.relaxed_bound(params) <= kth).then(|| Hit {
+                        id: self.entries[i].id.clone(),
+                        distance: compare_costs(&costs, params).sim,
+                    })
+                })
+                .collect();
+            evaluated += solved.len();
+            best.extend(solved);
             sort_hits(&mut best);
             best.truncate(k);
             if live.len() < batch.len() {

@@ -6,7 +6,7 @@
 use serde::{Deserialize, Serialize};
 
 use crate::descriptor::histogram_l1;
-use crate::emd::emd_uniform;
+use crate::emd::emd_matrix;
 use crate::params::SimilarityParams;
 use crate::signature::{Feature, Signature};
 
@@ -44,13 +44,66 @@ pub fn penalty(m: usize, n: usize, params: &SimilarityParams) -> f64 {
 
 /// `SIM(P, Q)` by exact EMD over the features, each of weight `1/m` resp. `1/n` (Eq. 12).
 pub fn compare(p: &Signature, q: &Signature, params: &SimilarityParams) -> Similarity {
-    let (m, n) = (p.features.len(), q.features.len());
+    compare_costs(&CostMatrix::new(p, q, params), params)
+}
+
+/// Ground distances between every feature of `P` (rows) and of `Q` (columns).
+#[derive(Debug, Clone, PartialEq)]
+pub struct CostMatrix {
+    m: usize,
+    n: usize,
+    cost: Vec<f64>,
+}
+
+impl CostMatrix {
+    pub fn new(p: &Signature, q: &Signature, params: &SimilarityParams) -> Self {
+        let (m, n) = (p.features.len(), q.features.len());
+        let cost = p
+            .features
+            .iter()
+            .flat_map(|a| {
+                q.features
+                    .iter()
+                    .map(move |b| ground_distance(a, b, params.ecc_weight))
+            })
+            .collect();
+        Self { m, n, cost }
+    }
+
+    /// A lower bound on [`compare_costs`]'s `sim` that drops one side's constraints: every
+    /// unit of `P`'s mass travels at least to its nearest feature of `Q`, and vice versa
+    /// (Pele and Werman 2008 call it the relaxed EMD). Cheaper than the EMD once the costs are
+    /// known, and much tighter than the centroid bound.
+    pub fn relaxed_bound(&self, params: &SimilarityParams) -> f64 {
+        let (m, n) = (self.m, self.n);
+        if m == 0 || n == 0 {
+            return f64::INFINITY;
+        }
+        let rows: f64 = self
+            .cost
+            .chunks_exact(n)
+            .map(|row| row.iter().copied().fold(f64::INFINITY, f64::min))
+            .sum::<f64>()
+            / m as f64;
+        let columns: f64 = (0..n)
+            .map(|j| {
+                (0..m)
+                    .map(|i| self.cost[i * n + j])
+                    .fold(f64::INFINITY, f64::min)
+            })
+            .sum::<f64>()
+            / n as f64;
+        penalty(m, n, params) * rows.max(columns)
+    }
+}
+
+/// [`compare`] from precomputed ground distances.
+pub fn compare_costs(costs: &CostMatrix, params: &SimilarityParams) -> Similarity {
+    let (m, n) = (costs.m, costs.n);
     let emd = if m == 0 || n == 0 {
         f64::INFINITY
     } else {
-        emd_uniform(m, n, |i, j| {
-            ground_distance(&p.features[i], &q.features[j], params.ecc_weight)
-        })
+        emd_matrix(&vec![n as u64; m], &vec![m as u64; n], &costs.cost)
     };
     Similarity {
         sim: penalty(m, n, params) * emd,
@@ -65,16 +118,50 @@ pub fn d2_distance(p: &Signature, q: &Signature) -> f64 {
     histogram_l1(&p.d2, &q.d2)
 }
 
-/// Feature means of a signature, for [`lower_bound`].
+/// What [`lower_bound`] needs of a signature, computed once per stored model.
 #[derive(Debug, Clone, PartialEq)]
-pub struct Centroid {
-    ecc: Vec<f64>,
-    d2: Vec<f64>,
+pub struct Summary {
     count: usize,
+    /// Feature means (ECC and region D2).
+    ecc_mean: Vec<f64>,
+    d2_mean: Vec<f64>,
+    /// Per projection, the features' scalar projections, sorted.
+    projections: Vec<Vec<f64>>,
 }
 
-impl Centroid {
-    pub fn of(signature: &Signature) -> Self {
+/// Scalar projections of a feature, each 1-Lipschitz for the ground distance before its weight
+/// is applied: `|u·Δα| ≤ ‖Δα‖₂` for a unit `u` (scaled by `1/√N` like `d_ECC`), and
+/// `½|c·Δh| ≤ ½‖Δh‖₁` for `|c_k| ≤ 1`. Mean ECC, ECC slope across the waves, and mean D2 distance
+/// (bin centres mapped to [-1, 1]).
+fn projections(f: &Feature) -> [(f64, f64); 3] {
+    let n = f.ecc.len().max(1) as f64;
+    let mean = f.ecc.iter().sum::<f64>() / n; // u = 1/√N: (u·α)/√N = mean
+    let centre = (n - 1.0) / 2.0;
+    let spread = (0..f.ecc.len())
+        .map(|i| (i as f64 - centre).powi(2))
+        .sum::<f64>()
+        .sqrt()
+        .max(1e-12);
+    let slope = f
+        .ecc
+        .iter()
+        .enumerate()
+        .map(|(i, a)| (i as f64 - centre) / spread * a)
+        .sum::<f64>()
+        / n.sqrt();
+    let bins = f.d2.len().max(1) as f64;
+    let distance =
+        f.d2.iter()
+            .enumerate()
+            .map(|(k, h)| (2.0 * k as f64 + 1.0 - bins) / bins * h)
+            .sum::<f64>()
+            / 2.0;
+    // (ECC part, D2 part) of each projection; the weight W combines them at query time.
+    [(mean, 0.0), (slope, 0.0), (0.0, distance)]
+}
+
+impl Summary {
+    pub fn of(signature: &Signature, params: &SimilarityParams) -> Self {
         let count = signature.features.len();
         let mean = |get: fn(&Feature) -> &[f64]| {
             let len = signature.features.first().map_or(0, |f| get(f).len());
@@ -86,21 +173,94 @@ impl Centroid {
             }
             sum.into_iter().map(|s| s / count.max(1) as f64).collect()
         };
+        let w = params.ecc_weight;
+        let per_feature: Vec<[(f64, f64); 3]> =
+            signature.features.iter().map(projections).collect();
+        let mut projected: Vec<Vec<f64>> = (0..3)
+            .map(|k| {
+                per_feature
+                    .iter()
+                    .map(|p| w * p[k].0 + (1.0 - w) * p[k].1)
+                    .collect()
+            })
+            .collect();
+        // Mean ECC and mean D2 distance together: d ≥ |Δφ_ecc| + |Δφ_d2| ≥ |Δ(φ_ecc + φ_d2)|.
+        projected.push(
+            per_feature
+                .iter()
+                .map(|p| w * p[0].0 + (1.0 - w) * p[2].1)
+                .collect(),
+        );
+        for values in &mut projected {
+            values.sort_by(f64::total_cmp);
+        }
         Self {
-            ecc: mean(|f| &f.ecc),
-            d2: mean(|f| &f.d2),
             count,
+            ecc_mean: mean(|f| &f.ecc),
+            d2_mean: mean(|f| &f.d2),
+            projections: projected,
         }
     }
 }
 
-/// A lower bound on [`compare`]'s `sim` (Rubner et al. 2000, §4.2): the ground distance is a
-/// norm of the feature difference (a weighted sum of an L2 and an L1 norm on separate parts),
-/// and both sides carry the same total mass, so by convexity
-/// `EMD(P, Q) = Σ f_ij d(p_i − q_j) ≥ d(Σ f_ij (p_i − q_j)) = d(mean P − mean Q)`. The penalty
-/// multiplies both sides.
-pub fn lower_bound(p: &Centroid, q: &Centroid, params: &SimilarityParams) -> f64 {
+/// A lower bound on [`compare`]'s `sim`, from two facts about the EMD with equal total masses
+/// (Rubner et al. 2000, §4.2; Villani, *Optimal Transport*, ch. 6):
+/// - the ground distance is a norm of the feature difference (a weighted sum of an L2 and an L1
+///   norm on separate parts), so by convexity
+///   `EMD(P, Q) = Σ f_ij d(p_i − q_j) ≥ d(Σ f_ij (p_i − q_j)) = d(mean P − mean Q)`;
+/// - mapping features through a 1-Lipschitz scalar projection cannot increase the EMD, and in
+///   one dimension the EMD is exact in O(m + n) from sorted values.
+///
+/// The larger of these, times the penalty (which multiplies both sides). Both summaries must
+/// have been built with the same `W` as `params`.
+pub fn lower_bound(p: &Summary, q: &Summary, params: &SimilarityParams) -> f64 {
     let w = params.ecc_weight;
-    let d = w * rms(&p.ecc, &q.ecc) + (1.0 - w) * histogram_l1(&p.d2, &q.d2);
-    penalty(p.count, q.count, params) * d
+    let centroid =
+        w * rms(&p.ecc_mean, &q.ecc_mean) + (1.0 - w) * histogram_l1(&p.d2_mean, &q.d2_mean);
+    let projected = p
+        .projections
+        .iter()
+        .zip(&q.projections)
+        .map(|(a, b)| emd_1d(a, b))
+        .fold(0.0, f64::max);
+    penalty(p.count, q.count, params) * centroid.max(projected)
+}
+
+/// EMD between two sorted samples on the line with uniform weights: the area between their
+/// quantile functions, walked breakpoint by breakpoint (integer arithmetic on `i·n` vs `j·m`
+/// keeps the breakpoints exact).
+fn emd_1d(a: &[f64], b: &[f64]) -> f64 {
+    let (m, n) = (a.len(), b.len());
+    if m == 0 || n == 0 {
+        return 0.0;
+    }
+    let (mut i, mut j, mut t, mut total) = (0, 0, 0usize, 0.0);
+    while i < m && j < n {
+        let (next_a, next_b) = ((i + 1) * n, (j + 1) * m);
+        let next = next_a.min(next_b);
+        total += (next - t) as f64 * (a[i] - b[j]).abs();
+        t = next;
+        if next_a == next {
+            i += 1;
+        }
+        if next_b == next {
+            j += 1;
+        }
+    }
+    total / (m * n) as f64
+}
+
+#[cfg(test)]
+mod tests {
+    use super::emd_1d;
+
+    #[test]
+    fn one_dimensional_emd_by_hand() {
+        assert_eq!(emd_1d(&[0.0], &[1.0]), 1.0);
+        assert_eq!(emd_1d(&[0.0, 1.0], &[0.0, 1.0]), 0.0);
+        // Half the mass moves 1, the other half 0: 0.5.
+        assert_eq!(emd_1d(&[0.0, 1.0], &[1.0]), 0.5);
+        // Quantiles 1/3 and 2/3 against 1/2: |0−0|·1/3 + |1−0|·1/6 + |1−2|·1/6 + |2−2|·1/3.
+        assert!((emd_1d(&[0.0, 1.0, 2.0], &[0.0, 2.0]) - 1.0 / 3.0).abs() < 1e-12);
+    }
 }
