@@ -11,8 +11,10 @@
 //! - [`signature`]: a model's features, parameters and statistics; JSON and binary (§4);
 //! - [`emd`]: exact Earth Mover's Distance by the transportation simplex (§5);
 //! - [`similarity`]: ground distance, penalised EMD, D2 baseline distance, lower bound (§5–6);
-//! - [`rank`]: top-k ranking of an in-memory collection with bound-based pruning.
+//! - [`rank`]: top-k ranking of an in-memory collection with bound-based pruning;
+//! - [`collection`]: mesh folders and a disk cache of their signatures.
 
+pub mod collection;
 pub mod descriptor;
 pub mod ecc;
 pub mod emd;

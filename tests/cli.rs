@@ -181,3 +181,155 @@ fn out_of_range_parameters_are_refused() {
         assert!(stderr.contains(name), "{stderr}");
     }
 }
+
+fn json_of(out: &Output) -> Value {
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    serde_json::from_slice(&out.stdout).unwrap()
+}
+
+#[test]
+fn extract_json_is_a_signature_and_compare_reads_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let (star, cone) = (dir.path().join("star.obj"), dir.path().join("cone.obj"));
+    write_obj(&star, &shapes::star(4, &shapes::five_tips()));
+    write_obj(&cone, &shapes::cone(0.5, 40, 48));
+
+    let signature = json_of(&salient(&["extract", star.to_str().unwrap(), "--json"]));
+    let features = signature["features"].as_array().unwrap();
+    assert_eq!(features.len(), 5);
+    for f in features {
+        for key in [
+            "vertex",
+            "position",
+            "position_normalized",
+            "ecc",
+            "d2",
+            "region_size",
+            "region_area",
+        ] {
+            assert!(f.get(key).is_some(), "feature lacks {key}");
+        }
+        assert_eq!(f["ecc"].as_array().unwrap().len(), 10);
+        assert_eq!(f["d2"].as_array().unwrap().len(), 64);
+    }
+    assert!(signature.get("params").is_some() && signature.get("stats").is_some());
+    let saved = dir.path().join("star.json");
+    std::fs::write(&saved, serde_json::to_string(&signature).unwrap()).unwrap();
+
+    let meshes = json_of(&salient(&[
+        "compare",
+        star.to_str().unwrap(),
+        cone.to_str().unwrap(),
+        "--json",
+    ]));
+    let from_json = json_of(&salient(&[
+        "compare",
+        saved.to_str().unwrap(),
+        cone.to_str().unwrap(),
+        "--json",
+    ]));
+    assert_eq!(meshes, from_json);
+    assert_eq!(meshes["m"], 5);
+    assert!(meshes["sim"].as_f64().unwrap() > 0.0);
+    let m = meshes["m"].as_f64().unwrap();
+    let n = meshes["n"].as_f64().unwrap();
+    let emd = meshes["emd"].as_f64().unwrap();
+    assert!((meshes["sim"].as_f64().unwrap() - emd * m.max(n) / m.min(n)).abs() < 1e-12);
+    let itself = json_of(&salient(&[
+        "compare",
+        star.to_str().unwrap(),
+        saved.to_str().unwrap(),
+        "--json",
+    ]));
+    assert_eq!(itself["sim"], 0.0);
+
+    let text = salient(&["compare", star.to_str().unwrap(), cone.to_str().unwrap()]);
+    assert!(String::from_utf8(text.stdout).unwrap().starts_with("SIM "));
+}
+
+#[test]
+fn search_ranks_a_folder_and_caches_signatures() {
+    let dir = tempfile::tempdir().unwrap();
+    let collection = dir.path().join("models");
+    std::fs::create_dir_all(collection.join("stars")).unwrap();
+    std::fs::create_dir_all(collection.join("other")).unwrap();
+    let star = shapes::star(4, &shapes::five_tips());
+    write_obj(&collection.join("stars/star.obj"), &star);
+    write_obj(
+        &collection.join("stars/moved.obj"),
+        &shapes::transformed(&star, shapes::random_motion(4)),
+    );
+    write_obj(
+        &collection.join("other/cone.obj"),
+        &shapes::cone(0.5, 40, 48),
+    );
+    write_obj(
+        &collection.join("other/tube.obj"),
+        &shapes::tube(0.2, 60, 24),
+    );
+    std::fs::write(collection.join("other/notes.txt"), "not a mesh").unwrap();
+    std::fs::write(collection.join("other/broken.obj"), "v 0 0 0\nf 1 2 3\n").unwrap();
+    let query = collection.join("stars/star.obj");
+    let args = |method: &str| {
+        vec![
+            "search".to_string(),
+            query.to_str().unwrap().into(),
+            collection.to_str().unwrap().into(),
+            "-k".into(),
+            "3".into(),
+            "--method".into(),
+            method.into(),
+            "--json".into(),
+        ]
+    };
+    let run = |method: &str| {
+        json_of(&salient(
+            &args(method).iter().map(String::as_str).collect::<Vec<_>>(),
+        ))
+    };
+
+    let first = run("ecc");
+    let ids: Vec<&str> = first["results"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|r| r["id"].as_str().unwrap())
+        .collect();
+    assert_eq!(&ids[..2], ["stars/star.obj", "stars/moved.obj"]);
+    assert_eq!(first["results"][0]["distance"], 0.0);
+    assert_eq!(first["results"][0]["rank"], 1);
+    assert_eq!(first["collection"], 4);
+    // The query itself was extracted (and cached) first.
+    assert_eq!((first["extracted"].as_u64(), first["cached"].as_u64()), (Some(3), Some(1)));
+    assert_eq!(first["failed"][0]["path"], "other/broken.obj");
+    assert!(collection.join(".salient-cache").is_dir());
+
+    // Everything is cached now, and the ranking is the same.
+    let second = run("ecc");
+    assert_eq!(second["extracted"], 0);
+    assert_eq!(second["cached"], 4);
+    assert_eq!(second["results"], first["results"]);
+
+    let d2 = run("d2");
+    assert_eq!(d2["method"], "d2");
+    assert_eq!(d2["results"][0]["id"], "stars/star.obj");
+
+    let bad = salient(&[
+        "search",
+        query.to_str().unwrap(),
+        dir.path().join("nowhere").to_str().unwrap(),
+    ]);
+    assert_eq!(bad.status.code(), Some(1));
+    let bad = salient(&[
+        "search",
+        query.to_str().unwrap(),
+        collection.to_str().unwrap(),
+        "--method",
+        "lfd",
+    ]);
+    assert_ne!(bad.status.code(), Some(0));
+}

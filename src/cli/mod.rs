@@ -1,7 +1,9 @@
 //! Subcommands of the `salient` binary. Each translates arguments into library calls and
 //! results into output; the method itself lives in the library.
 
+mod compare;
 mod extract;
+mod search;
 
 use std::path::PathBuf;
 
@@ -23,8 +25,12 @@ pub struct Cli {
 
 #[derive(Debug, Subcommand)]
 enum Command {
-    /// Extract the ECC of a mesh (OBJ, glTF/GLB, OFF, PLY, STL) and print a summary or JSON.
+    /// Extract the signature of a mesh (OBJ, glTF/GLB, OFF, PLY, STL): a summary or JSON.
     Extract(extract::Args),
+    /// Compare two models (meshes or signature JSON files) by their salient features.
+    Compare(compare::Args),
+    /// Rank the meshes of a folder by similarity to a query.
+    Search(search::Args),
 }
 
 pub fn run(cli: Cli) -> anyhow::Result<()> {
@@ -36,6 +42,8 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
     }
     match cli.command {
         Command::Extract(args) => extract::run(args),
+        Command::Compare(args) => compare::run(args),
+        Command::Search(args) => search::run(args),
     }
 }
 

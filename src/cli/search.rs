@@ -1,0 +1,164 @@
+//! `salient search QUERY COLLECTION_DIR [-k 10] [--method ecc|d2] [--json]`.
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use anyhow::Context;
+use indicatif::{ProgressBar, ProgressStyle};
+use serde::Serialize;
+
+use salient::collection::{find_meshes, SignatureCache, Source};
+use salient::rank::{Index, Method};
+use salient::Limits;
+
+#[derive(Debug, clap::Args)]
+pub struct Args {
+    /// The query: a mesh file, or a signature JSON written by `salient extract --json`.
+    query: PathBuf,
+    /// Folder of meshes to rank (searched recursively).
+    collection: PathBuf,
+    /// How many results.
+    #[arg(short, default_value_t = 10)]
+    k: usize,
+    /// ecc (salient features, penalised EMD) or d2 (global shape distribution baseline).
+    #[arg(long, default_value = "ecc")]
+    method: Method,
+    /// Print JSON.
+    #[arg(long)]
+    json: bool,
+    /// Parameters as JSON (fields left out keep the SPEC defaults).
+    #[arg(long)]
+    params: Option<PathBuf>,
+    /// Where signatures are cached (default: COLLECTION/.salient-cache).
+    #[arg(long)]
+    cache_dir: Option<PathBuf>,
+}
+
+#[derive(Serialize)]
+struct Output<'a> {
+    query: &'a Path,
+    method: Method,
+    k: usize,
+    results: Vec<Row>,
+    collection: usize,
+    extracted: usize,
+    cached: usize,
+    failed: Vec<Failure>,
+    evaluated: usize,
+    pruned: usize,
+    index_seconds: f64,
+    search_seconds: f64,
+}
+
+#[derive(Serialize)]
+struct Row {
+    rank: usize,
+    id: String,
+    distance: f64,
+}
+
+#[derive(Serialize)]
+struct Failure {
+    path: String,
+    error: String,
+}
+
+pub fn run(args: Args) -> anyhow::Result<()> {
+    let params = super::load_params(args.params.as_ref())?;
+    params.validate()?;
+    let cache = match &args.cache_dir {
+        Some(dir) => SignatureCache::new(dir, &params),
+        None => SignatureCache::beside(&args.collection, &params),
+    };
+    let limits = Limits::default();
+    let files = find_meshes(&args.collection)?;
+    let query = if args
+        .query
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("json"))
+    {
+        super::compare::signature_of(&args.query, &params)?
+    } else {
+        cache
+            .signature(&args.query, &params, &limits)
+            .with_context(|| args.query.display().to_string())?
+            .0
+    };
+
+    let clock = Instant::now();
+    let progress = ProgressBar::new(files.len() as u64).with_style(
+        ProgressStyle::with_template("{bar:40} {pos}/{len} {msg}").expect("a valid template"),
+    );
+    let mut index = Index::new(params.similarity.clone());
+    let (mut extracted, mut cached, mut failed) = (0, 0, Vec::new());
+    for path in &files {
+        let id = path
+            .strip_prefix(&args.collection)
+            .unwrap_or(path)
+            .display()
+            .to_string();
+        progress.set_message(id.clone());
+        match cache.signature(path, &params, &limits) {
+            Ok((signature, source)) => {
+                match source {
+                    Source::Cached => cached += 1,
+                    Source::Extracted => extracted += 1,
+                }
+                index.insert(id, signature);
+            }
+            Err(error) => {
+                progress.suspend(|| eprintln!("skipping {id}: {error}"));
+                failed.push(Failure {
+                    path: id,
+                    error: error.to_string(),
+                });
+            }
+        }
+        progress.inc(1);
+    }
+    progress.finish_and_clear();
+    let index_seconds = clock.elapsed().as_secs_f64();
+
+    let clock = Instant::now();
+    let ranking = index.search(&query, args.k, args.method);
+    let search_seconds = clock.elapsed().as_secs_f64();
+    let results: Vec<Row> = ranking
+        .hits
+        .into_iter()
+        .enumerate()
+        .map(|(i, hit)| Row {
+            rank: i + 1,
+            id: hit.id,
+            distance: hit.distance,
+        })
+        .collect();
+    if args.json {
+        let output = Output {
+            query: &args.query,
+            method: args.method,
+            k: args.k,
+            results,
+            collection: index.len(),
+            extracted,
+            cached,
+            failed,
+            evaluated: ranking.evaluated,
+            pruned: ranking.pruned,
+            index_seconds,
+            search_seconds,
+        };
+        println!("{}", serde_json::to_string(&output)?);
+    } else {
+        for r in &results {
+            println!("{:>4}  {:.6}  {}", r.rank, r.distance, r.id);
+        }
+        eprintln!(
+            "{} models ({extracted} extracted, {cached} cached, {} failed); search {:.1} ms, {} exact comparisons",
+            index.len(),
+            failed.len(),
+            search_seconds * 1e3,
+            ranking.evaluated
+        );
+    }
+    Ok(())
+}

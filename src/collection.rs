@@ -1,0 +1,109 @@
+//! Folders of mesh files: finding them, and a disk cache of their signatures keyed by content,
+//! so that searching or evaluating a collection again extracts nothing that has not changed.
+
+use std::fs;
+use std::path::{Path, PathBuf};
+
+use sha2::{Digest, Sha256};
+
+use crate::extract::extract_path;
+use crate::mesh::Format;
+use crate::params::{Limits, Params};
+use crate::signature::{describe, hex, Signature};
+use crate::{Error, Result};
+
+/// Name of the cache folder [`SignatureCache::beside`] creates in a collection.
+pub const CACHE_DIR: &str = ".salient-cache";
+
+/// Mesh files below `dir` in a recognised format, sorted by path. Hidden files and folders
+/// (such as the cache) are skipped.
+pub fn find_meshes(dir: &Path) -> Result<Vec<PathBuf>> {
+    let io = |source: std::io::Error| Error::Io {
+        path: dir.to_path_buf(),
+        source,
+    };
+    if !dir.is_dir() {
+        return Err(io(std::io::Error::new(
+            std::io::ErrorKind::NotFound,
+            "not a folder",
+        )));
+    }
+    let mut files = Vec::new();
+    let walker = walkdir::WalkDir::new(dir).sort_by_file_name().into_iter();
+    let visible =
+        |e: &walkdir::DirEntry| e.depth() == 0 || !e.file_name().to_string_lossy().starts_with('.');
+    for entry in walker.filter_entry(visible) {
+        let entry = entry.map_err(|e| io(e.into()))?;
+        if entry.file_type().is_file() && Format::from_path(entry.path()).is_some() {
+            files.push(entry.into_path());
+        }
+    }
+    Ok(files)
+}
+
+/// Signatures on disk, one file per (file content, parameters) pair.
+#[derive(Debug, Clone)]
+pub struct SignatureCache {
+    dir: PathBuf,
+    params_key: Vec<u8>,
+}
+
+/// Whether [`SignatureCache::signature`] found the signature or extracted it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Source {
+    Cached,
+    Extracted,
+}
+
+impl SignatureCache {
+    /// A cache in `dir` for signatures made with `params`.
+    pub fn new(dir: impl Into<PathBuf>, params: &Params) -> Self {
+        Self {
+            dir: dir.into(),
+            params_key: serde_json::to_vec(params).expect("parameters serialise"),
+        }
+    }
+
+    /// A cache in the collection's own `.salient-cache` folder.
+    pub fn beside(collection: &Path, params: &Params) -> Self {
+        Self::new(collection.join(CACHE_DIR), params)
+    }
+
+    /// The signature of the mesh at `path`: from the cache when its bytes and the parameters
+    /// are unchanged, else extracted and stored. A cache entry that cannot be read is
+    /// replaced; a cache that cannot be written only costs the next run its time.
+    ///
+    /// The key covers the file itself, not the sibling buffers a `.gltf` may reference.
+    pub fn signature(
+        &self,
+        path: &Path,
+        params: &Params,
+        limits: &Limits,
+    ) -> Result<(Signature, Source)> {
+        let bytes = fs::read(path).map_err(|source| Error::Io {
+            path: path.to_path_buf(),
+            source,
+        })?;
+        let mut hasher = Sha256::new();
+        hasher.update(&bytes);
+        hasher.update(&self.params_key);
+        let entry = self.dir.join(format!("{}.sig", hex(&hasher.finalize())));
+        if let Some(signature) = fs::read(&entry)
+            .ok()
+            .and_then(|b| Signature::from_bytes(&b).ok())
+        {
+            return Ok((signature, Source::Cached));
+        }
+        let bytes = describe(&extract_path(path, params, limits)?, params).to_bytes();
+        // Written to a temporary name and renamed, so a reader never sees half a file.
+        let temporary = entry.with_extension(format!("tmp{}", std::process::id()));
+        let stored = fs::create_dir_all(&self.dir)
+            .and_then(|()| fs::write(&temporary, &bytes))
+            .and_then(|()| fs::rename(&temporary, &entry));
+        if stored.is_err() {
+            let _ = fs::remove_file(&temporary);
+        }
+        // The stored form, so that a result never depends on whether it came from the cache.
+        Ok((Signature::from_bytes(&bytes)?, Source::Extracted))
+    }
+}
