@@ -304,7 +304,10 @@ fn search_ranks_a_folder_and_caches_signatures() {
     assert_eq!(first["results"][0]["rank"], 1);
     assert_eq!(first["collection"], 4);
     // The query itself was extracted (and cached) first.
-    assert_eq!((first["extracted"].as_u64(), first["cached"].as_u64()), (Some(3), Some(1)));
+    assert_eq!(
+        (first["extracted"].as_u64(), first["cached"].as_u64()),
+        (Some(3), Some(1))
+    );
     assert_eq!(first["failed"][0]["path"], "other/broken.obj");
     assert!(collection.join(".salient-cache").is_dir());
 
