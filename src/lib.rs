@@ -12,8 +12,11 @@
 //! - [`emd`]: exact Earth Mover's Distance by the transportation simplex (§5);
 //! - [`similarity`]: ground distance, penalised EMD, D2 baseline distance, lower bound (§5–6);
 //! - [`rank`]: top-k ranking of an in-memory collection with bound-based pruning;
-//! - [`collection`]: mesh folders and a disk cache of their signatures.
+//! - [`collection`]: mesh folders and a disk cache of their signatures;
+//! - [`store`]: persistent models, signatures and original files (sled);
+//! - [`api`]: the HTTP service (SPEC §8).
 
+pub mod api;
 pub mod collection;
 pub mod descriptor;
 pub mod ecc;
@@ -27,6 +30,7 @@ pub mod rank;
 pub mod salient;
 pub mod signature;
 pub mod similarity;
+pub mod store;
 pub mod waves;
 
 pub use error::{Error, Result};

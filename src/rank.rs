@@ -7,6 +7,7 @@
 //! Because the bound never exceeds the true distance, this returns exactly the top `k` of a
 //! full scan.
 
+use std::collections::HashMap;
 use std::fmt;
 use std::str::FromStr;
 
@@ -81,6 +82,7 @@ pub struct Ranking {
 pub struct Index {
     params: SimilarityParams,
     entries: Vec<Entry>,
+    position: HashMap<String, usize>,
 }
 
 #[derive(Debug, Clone)]
@@ -98,17 +100,43 @@ impl Index {
         Self {
             params,
             entries: Vec::new(),
+            position: HashMap::new(),
         }
     }
 
-    /// Adds an entry; ids are expected to be unique.
+    /// Adds an entry, replacing one with the same id.
     pub fn insert(&mut self, id: impl Into<String>, signature: Signature) {
+        let id = id.into();
         let summary = Summary::of(&signature, &self.params);
-        self.entries.push(Entry {
-            id: id.into(),
+        let entry = Entry {
+            id: id.clone(),
             signature,
             summary,
-        });
+        };
+        match self.position.get(&id) {
+            Some(&i) => self.entries[i] = entry,
+            None => {
+                self.position.insert(id, self.entries.len());
+                self.entries.push(entry);
+            }
+        }
+    }
+
+    /// Removes an entry; returns whether it was there.
+    pub fn remove(&mut self, id: &str) -> bool {
+        let Some(i) = self.position.remove(id) else {
+            return false;
+        };
+        self.entries.swap_remove(i);
+        if let Some(moved) = self.entries.get(i) {
+            self.position.insert(moved.id.clone(), i);
+        }
+        true
+    }
+
+    /// The signature stored under `id`.
+    pub fn get(&self, id: &str) -> Option<&Signature> {
+        self.position.get(id).map(|&i| &self.entries[i].signature)
     }
 
     /// The parameters the index compares with.
@@ -126,25 +154,72 @@ impl Index {
 
     /// The `k` entries nearest to `query`, nearest first, ties by id.
     pub fn search(&self, query: &Signature, k: usize, method: Method) -> Ranking {
+        self.search_where(query, k, method, &|_| true)
+    }
+
+    /// [`Index::search`] over the entries whose id `keep` accepts (a tag filter, or "not the
+    /// query itself"). Entries left out count neither as evaluated nor as pruned.
+    pub fn search_where(
+        &self,
+        query: &Signature,
+        k: usize,
+        method: Method,
+        keep: &(dyn Fn(&str) -> bool + Sync),
+    ) -> Ranking {
         match method {
-            Method::Ecc => self.search_pruned(query, k),
+            Method::Ecc => self.search_pruned(query, k, keep),
             Method::D2 => {
                 let mut hits: Vec<Hit> = self
                     .entries
                     .par_iter()
+                    .filter(|e| keep(&e.id))
                     .map(|e| Hit {
                         id: e.id.clone(),
                         distance: d2_distance(query, &e.signature),
                     })
                     .collect();
+                let evaluated = hits.len();
                 sort_hits(&mut hits);
                 hits.truncate(k);
                 Ranking {
                     hits,
-                    evaluated: self.entries.len(),
+                    evaluated,
                     pruned: 0,
                 }
             }
+        }
+    }
+
+    /// [`Index::search_where`] with other similarity parameters than the index was built for
+    /// (a query-time `W`): the bounds' summaries do not hold for them, so this ranks
+    /// exhaustively unless the parameters are the index's own.
+    pub fn search_with(
+        &self,
+        query: &Signature,
+        k: usize,
+        method: Method,
+        params: &SimilarityParams,
+        keep: &(dyn Fn(&str) -> bool + Sync),
+    ) -> Ranking {
+        if method == Method::D2 || *params == self.params {
+            return self.search_where(query, k, method, keep);
+        }
+        let mut hits: Vec<Hit> = self
+            .entries
+            .par_iter()
+            .filter(|e| keep(&e.id))
+            .map(|e| Hit {
+                id: e.id.clone(),
+                distance: distance(method, query, &e.signature, params),
+            })
+            .collect();
+        let evaluated = hits.len();
+        sort_hits(&mut hits);
+        hits.truncate(k);
+        Ranking {
+            hits,
+            evaluated,
+            pruned: 0,
         }
     }
 
@@ -168,7 +243,12 @@ impl Index {
         }
     }
 
-    fn search_pruned(&self, query: &Signature, k: usize) -> Ranking {
+    fn search_pruned(
+        &self,
+        query: &Signature,
+        k: usize,
+        keep: &(dyn Fn(&str) -> bool + Sync),
+    ) -> Ranking {
         let params = &self.params;
         if k == 0 {
             return Ranking {
@@ -182,6 +262,7 @@ impl Index {
             .entries
             .par_iter()
             .enumerate()
+            .filter(|(_, e)| keep(&e.id))
             .map(|(i, e)| (lower_bound(&summary, &e.summary, params), i))
             .collect();
         order.par_sort_unstable_by(|a, b| {
@@ -229,7 +310,7 @@ impl Index {
         Ranking {
             hits: best,
             evaluated,
-            pruned: self.entries.len() - evaluated,
+            pruned: order.len() - evaluated,
         }
     }
 }

@@ -4,6 +4,7 @@
 mod compare;
 mod extract;
 mod search;
+mod serve;
 
 use std::path::PathBuf;
 
@@ -31,6 +32,8 @@ enum Command {
     Compare(compare::Args),
     /// Rank the meshes of a folder by similarity to a query.
     Search(search::Args),
+    /// Run the HTTP retrieval service on its store.
+    Serve(serve::Args),
 }
 
 pub fn run(cli: Cli) -> anyhow::Result<()> {
@@ -44,6 +47,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Extract(args) => extract::run(args),
         Command::Compare(args) => compare::run(args),
         Command::Search(args) => search::run(args),
+        Command::Serve(args) => serve::run(args),
     }
 }
 

@@ -182,6 +182,12 @@ impl Resources for HashMap<String, Vec<u8>> {
     }
 }
 
+impl Resources for std::collections::BTreeMap<String, Vec<u8>> {
+    fn get(&self, uri: &str) -> Option<Vec<u8>> {
+        std::collections::BTreeMap::get(self, uri).cloned()
+    }
+}
+
 /// Parses `bytes` as `format` and checks the result (SPEC §1.1). `resources` supplies the
 /// external buffers of a `.gltf`; other formats ignore it.
 pub fn load_bytes(

@@ -1,0 +1,101 @@
+//! Server configuration: defaults, then an optional TOML file, then `SALIENT_*` environment
+//! variables and flags (the CLI applies the last two).
+
+use std::net::SocketAddr;
+use std::path::{Path, PathBuf};
+
+use serde::{Deserialize, Serialize};
+
+use crate::params::{Limits, Params};
+
+/// Everything `salient serve` can be told.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct Config {
+    /// Address to listen on.
+    pub addr: SocketAddr,
+    /// Folder of the sled store.
+    pub data: PathBuf,
+    /// Largest request body in bytes (uploads); larger ones get 413.
+    pub max_body_bytes: usize,
+    /// Extractions running at once.
+    pub workers: usize,
+    /// Extractions waiting for a worker; when full, new ones get 503 with `Retry-After`.
+    pub queue_depth: usize,
+    /// Time limit for one request, extraction included.
+    pub request_timeout_secs: u64,
+    /// Origins allowed by CORS; empty allows none, `["*"]` any.
+    pub cors_origins: Vec<String>,
+    /// Largest `k` a search may ask for.
+    pub max_k: usize,
+    /// Input limits (vertex and triangle counts).
+    pub limits: Limits,
+    /// Extraction and similarity parameters of the stored signatures.
+    pub params: Params,
+}
+
+impl Default for Config {
+    fn default() -> Self {
+        Self {
+            addr: SocketAddr::from(([127, 0, 0, 1], 8080)),
+            data: PathBuf::from("salient-data"),
+            max_body_bytes: 64 << 20,
+            workers: std::thread::available_parallelism().map_or(2, |n| n.get()),
+            queue_depth: 16,
+            request_timeout_secs: 120,
+            cors_origins: Vec::new(),
+            max_k: 1000,
+            limits: Limits {
+                max_input_vertices: 2_000_000,
+                max_input_triangles: 4_000_000,
+            },
+            params: Params::default(),
+        }
+    }
+}
+
+/// A configuration file that cannot be used.
+#[derive(Debug, thiserror::Error)]
+pub enum ConfigError {
+    #[error("cannot read {path}: {source}")]
+    Read {
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("invalid configuration in {path}: {message}")]
+    Invalid { path: PathBuf, message: String },
+}
+
+impl Config {
+    /// Defaults overlaid with `file` (TOML), if given.
+    pub fn load(file: Option<&Path>) -> Result<Self, ConfigError> {
+        let Some(path) = file else {
+            return Ok(Self::default());
+        };
+        let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
+            path: path.to_path_buf(),
+            source,
+        })?;
+        let config: Config = toml::from_str(&text).map_err(|e| ConfigError::Invalid {
+            path: path.to_path_buf(),
+            message: e.to_string(),
+        })?;
+        config.validate().map_err(|message| ConfigError::Invalid {
+            path: path.to_path_buf(),
+            message,
+        })?;
+        Ok(config)
+    }
+
+    /// Checks the values no server can run with.
+    pub fn validate(&self) -> Result<(), String> {
+        if self.workers == 0 {
+            return Err("workers must be at least 1".into());
+        }
+        if self.max_body_bytes == 0 || self.request_timeout_secs == 0 || self.max_k == 0 {
+            return Err("max_body_bytes, request_timeout_secs and max_k must be positive".into());
+        }
+        self.params.validate().map_err(|e| e.to_string())
+    }
+}

@@ -1,0 +1,166 @@
+//! One error type for every HTTP failure, ours or axum's, with one JSON shape:
+//! `{"error": {"code": "…", "message": "…"}}` (SPEC §8; axum's `examples/error-handling`).
+
+use axum::extract::multipart::MultipartError;
+use axum::extract::rejection::{BytesRejection, JsonRejection, PathRejection, QueryRejection};
+use axum::http::{header, StatusCode};
+use axum::response::{IntoResponse, Response};
+use axum::Json;
+use serde::Serialize;
+
+use crate::store::StoreError;
+
+/// Everything a request can fail with.
+#[derive(Debug, thiserror::Error)]
+pub enum AppError {
+    /// Malformed request: parameters, JSON, ids, a mesh file that does not parse.
+    #[error("{message}")]
+    BadRequest { code: &'static str, message: String },
+    #[error("{0}")]
+    NotFound(String),
+    #[error("{0}")]
+    PayloadTooLarge(String),
+    #[error("{0}")]
+    UnsupportedMediaType(String),
+    /// A well-formed mesh that cannot be used (no triangles, degenerate, …).
+    #[error("{0}")]
+    Unprocessable(String),
+    /// The extraction queue is full: retry later.
+    #[error("the extraction queue is full; retry in {retry_after_secs} s")]
+    Overloaded { retry_after_secs: u64 },
+    #[error("extraction did not finish within {0} s")]
+    Timeout(u64),
+    #[error("internal error: {0}")]
+    Internal(String),
+}
+
+/// The JSON body of every error response.
+#[derive(Debug, Serialize, serde::Deserialize, utoipa::ToSchema)]
+pub struct ErrorBody {
+    pub error: ErrorDetail,
+}
+
+#[derive(Debug, Serialize, serde::Deserialize, utoipa::ToSchema)]
+pub struct ErrorDetail {
+    /// Stable machine-readable code, e.g. `unsupported_format`.
+    pub code: String,
+    pub message: String,
+}
+
+impl AppError {
+    pub fn bad_request(code: &'static str, message: impl Into<String>) -> Self {
+        AppError::BadRequest {
+            code,
+            message: message.into(),
+        }
+    }
+
+    fn status_and_code(&self) -> (StatusCode, &'static str) {
+        match self {
+            AppError::BadRequest { code, .. } => (StatusCode::BAD_REQUEST, code),
+            AppError::NotFound(_) => (StatusCode::NOT_FOUND, "not_found"),
+            AppError::PayloadTooLarge(_) => (StatusCode::PAYLOAD_TOO_LARGE, "payload_too_large"),
+            AppError::UnsupportedMediaType(_) => {
+                (StatusCode::UNSUPPORTED_MEDIA_TYPE, "unsupported_format")
+            }
+            AppError::Unprocessable(_) => (StatusCode::UNPROCESSABLE_ENTITY, "unusable_mesh"),
+            AppError::Overloaded { .. } => (StatusCode::SERVICE_UNAVAILABLE, "overloaded"),
+            AppError::Timeout(_) => (StatusCode::SERVICE_UNAVAILABLE, "timeout"),
+            AppError::Internal(_) => (StatusCode::INTERNAL_SERVER_ERROR, "internal"),
+        }
+    }
+}
+
+impl IntoResponse for AppError {
+    fn into_response(self) -> Response {
+        let (status, code) = self.status_and_code();
+        if status.is_server_error() {
+            tracing::error!(%status, error = %self, "request failed");
+        }
+        let body = Json(ErrorBody {
+            error: ErrorDetail {
+                code: code.to_string(),
+                message: self.to_string(),
+            },
+        });
+        match self {
+            AppError::Overloaded { retry_after_secs } => (
+                status,
+                [(header::RETRY_AFTER, retry_after_secs.to_string())],
+                body,
+            )
+                .into_response(),
+            _ => (status, body).into_response(),
+        }
+    }
+}
+
+/// Library errors: which are the client's fault and how (SPEC §8 statuses).
+impl From<crate::Error> for AppError {
+    fn from(e: crate::Error) -> Self {
+        use crate::Error as E;
+        match e {
+            E::UnknownFormat(_) => AppError::UnsupportedMediaType(e.to_string()),
+            E::TooLarge { .. } => AppError::PayloadTooLarge(e.to_string()),
+            E::NoTriangles
+            | E::OnlyDegenerate { .. }
+            | E::TooFewVertices { .. }
+            | E::ExtentOutOfRange { .. } => AppError::Unprocessable(e.to_string()),
+            E::Parse { .. }
+            | E::IndexOutOfRange { .. }
+            | E::NonFinite { .. }
+            | E::MissingResource { .. } => AppError::bad_request("bad_mesh", e.to_string()),
+            E::InvalidParameter { .. } => AppError::bad_request("invalid_parameter", e.to_string()),
+            E::Io { .. } | E::CorruptSignature { .. } | E::SignatureFormat { .. } => {
+                AppError::Internal(e.to_string())
+            }
+        }
+    }
+}
+
+impl From<StoreError> for AppError {
+    fn from(e: StoreError) -> Self {
+        AppError::Internal(e.to_string())
+    }
+}
+
+/// A rejection with axum's status: 413 for a body over the limit, else a bad request.
+fn rejection(status: StatusCode, code: &'static str, message: String) -> AppError {
+    if status == StatusCode::PAYLOAD_TOO_LARGE {
+        AppError::PayloadTooLarge(message)
+    } else if status == StatusCode::UNSUPPORTED_MEDIA_TYPE {
+        AppError::UnsupportedMediaType(message)
+    } else {
+        AppError::bad_request(code, message)
+    }
+}
+
+impl From<JsonRejection> for AppError {
+    fn from(r: JsonRejection) -> Self {
+        rejection(r.status(), "invalid_json", r.body_text())
+    }
+}
+
+impl From<QueryRejection> for AppError {
+    fn from(r: QueryRejection) -> Self {
+        rejection(r.status(), "invalid_query", r.body_text())
+    }
+}
+
+impl From<PathRejection> for AppError {
+    fn from(r: PathRejection) -> Self {
+        rejection(r.status(), "invalid_path", r.body_text())
+    }
+}
+
+impl From<BytesRejection> for AppError {
+    fn from(r: BytesRejection) -> Self {
+        rejection(r.status(), "invalid_body", r.body_text())
+    }
+}
+
+impl From<MultipartError> for AppError {
+    fn from(e: MultipartError) -> Self {
+        rejection(e.status(), "invalid_multipart", e.body_text())
+    }
+}

@@ -1,0 +1,77 @@
+//! Prometheus metrics (`GET /metrics`, text exposition format).
+
+use prometheus_client::encoding::EncodeLabelSet;
+use prometheus_client::metrics::counter::Counter;
+use prometheus_client::metrics::family::Family;
+use prometheus_client::metrics::gauge::Gauge;
+use prometheus_client::metrics::histogram::{exponential_buckets, Histogram};
+use prometheus_client::registry::Registry;
+
+#[derive(Debug, Clone, Hash, PartialEq, Eq, EncodeLabelSet)]
+pub struct RequestLabels {
+    pub method: String,
+    /// The route pattern (`/v1/models/{id}`), never the raw path, to bound the label set.
+    pub route: String,
+    pub status: u16,
+}
+
+/// The service's counters, histograms and gauges.
+#[derive(Debug)]
+pub struct Metrics {
+    registry: Registry,
+    pub requests: Family<RequestLabels, Counter>,
+    pub extraction_seconds: Histogram,
+    pub search_seconds: Histogram,
+    pub models: Gauge,
+    pub extraction_in_flight: Gauge,
+}
+
+impl Default for Metrics {
+    fn default() -> Self {
+        let requests = Family::<RequestLabels, Counter>::default();
+        let extraction_seconds = Histogram::new(exponential_buckets(0.01, 2.0, 14));
+        let search_seconds = Histogram::new(exponential_buckets(0.0005, 2.0, 14));
+        let models = Gauge::default();
+        let extraction_in_flight = Gauge::default();
+        let mut registry = Registry::with_prefix("salient");
+        registry.register(
+            "http_requests",
+            "HTTP requests by route and status",
+            requests.clone(),
+        );
+        registry.register(
+            "extraction_seconds",
+            "Time to extract a signature",
+            extraction_seconds.clone(),
+        );
+        registry.register(
+            "search_seconds",
+            "Time to rank the collection",
+            search_seconds.clone(),
+        );
+        registry.register("models", "Models in the store", models.clone());
+        registry.register(
+            "extraction_in_flight",
+            "Extractions running or queued",
+            extraction_in_flight.clone(),
+        );
+        Self {
+            registry,
+            requests,
+            extraction_seconds,
+            search_seconds,
+            models,
+            extraction_in_flight,
+        }
+    }
+}
+
+impl Metrics {
+    /// The text exposition of every metric.
+    pub fn render(&self) -> String {
+        let mut text = String::new();
+        prometheus_client::encoding::text::encode(&mut text, &self.registry)
+            .expect("writing to a String cannot fail");
+        text
+    }
+}

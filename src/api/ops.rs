@@ -1,0 +1,65 @@
+//! Operations: liveness, readiness, metrics and the API description.
+
+use axum::extract::State;
+use axum::http::header::CONTENT_TYPE;
+use axum::response::IntoResponse;
+use axum::Json;
+use serde::{Deserialize, Serialize};
+
+use super::AppState;
+
+/// Health and readiness.
+#[derive(Debug, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct Status {
+    pub status: String,
+    /// Models in the index.
+    pub models: usize,
+    /// Extractions running or queued.
+    pub extractions_in_flight: usize,
+}
+
+fn status(state: &AppState) -> Status {
+    Status {
+        status: "ok".into(),
+        models: state
+            .0
+            .catalog
+            .read()
+            .expect("catalog lock poisoned")
+            .records
+            .len(),
+        extractions_in_flight: state.0.pool.in_flight(),
+    }
+}
+
+/// Liveness: the process answers. Never waits for extraction.
+#[utoipa::path(get, path = "/healthz", tag = "operations", responses((status = 200, description = "Alive", body = Status)))]
+pub async fn healthz(State(state): State<AppState>) -> Json<Status> {
+    Json(status(&state))
+}
+
+/// Readiness: the store is open and every signature is in the index (the server binds its
+/// port only after loading, so a listening server is ready).
+#[utoipa::path(get, path = "/readyz", tag = "operations", responses((status = 200, description = "Ready", body = Status)))]
+pub async fn readyz(State(state): State<AppState>) -> Json<Status> {
+    Json(status(&state))
+}
+
+/// Prometheus metrics in the text exposition format.
+#[utoipa::path(get, path = "/metrics", tag = "operations", responses((status = 200, description = "Metrics", body = String, content_type = "text/plain")))]
+pub async fn metrics(State(state): State<AppState>) -> impl IntoResponse {
+    let app = &state.0;
+    app.metrics
+        .extraction_in_flight
+        .set(app.pool.in_flight() as i64);
+    (
+        [(CONTENT_TYPE, "text/plain; version=0.0.4; charset=utf-8")],
+        app.metrics.render(),
+    )
+}
+
+/// This API's OpenAPI 3.1 description (the committed `openapi.yaml`).
+#[utoipa::path(get, path = "/openapi.yaml", tag = "operations", responses((status = 200, description = "OpenAPI document", body = String, content_type = "application/yaml")))]
+pub async fn openapi_yaml() -> impl IntoResponse {
+    ([(CONTENT_TYPE, "application/yaml")], super::openapi_yaml())
+}

@@ -1,0 +1,247 @@
+//! Similarity search by upload and by stored model, and extraction without storing.
+
+use std::sync::Arc;
+use std::time::Instant;
+
+use axum::extract::rejection::{PathRejection, QueryRejection};
+use axum::extract::{Path, Query, State};
+use axum::Json;
+use serde::{Deserialize, Serialize};
+
+use super::error::{AppError, ErrorBody};
+use super::upload::{check_id, MeshFile, MeshForm, MeshUpload};
+use super::AppState;
+use crate::rank::{Method, Ranking};
+use crate::signature::Signature;
+
+/// Query of the search endpoints.
+#[derive(Debug, Deserialize, utoipa::IntoParams)]
+#[into_params(parameter_in = Query)]
+pub struct SearchQuery {
+    /// Number of results (default 10).
+    pub k: Option<usize>,
+    /// `ecc` (salient features, penalised EMD; default) or `d2` (global shape distribution).
+    #[param(value_type = Option<String>)]
+    pub method: Option<Method>,
+    /// Weight `W` of the ECC distance against the region D2 distance, in [0, 1]. A value other
+    /// than the configured one ranks without the bound-based pruning, so it is slower.
+    pub w: Option<f64>,
+    /// Only models with this tag.
+    pub tag: Option<String>,
+}
+
+/// One ranked model.
+#[derive(Debug, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct SearchHit {
+    pub rank: usize,
+    pub id: String,
+    pub name: Option<String>,
+    pub tags: Vec<String>,
+    pub class: Option<String>,
+    /// Lower is more similar (`SIM` of SPEC §5, or the D2 distance).
+    pub distance: f64,
+}
+
+/// Milliseconds spent on each part of the request.
+#[derive(Debug, Default, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct Timings {
+    pub extract_ms: f64,
+    pub search_ms: f64,
+    pub total_ms: f64,
+}
+
+/// A ranked list.
+#[derive(Debug, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct SearchResponse {
+    #[schema(value_type = String)]
+    pub method: Method,
+    pub k: usize,
+    pub results: Vec<SearchHit>,
+    /// Models whose exact distance was computed, and models rejected by a lower bound.
+    pub evaluated: usize,
+    pub pruned: usize,
+    /// Salient features of the query.
+    pub query_features: usize,
+    pub timings: Timings,
+}
+
+/// Ranks the catalog against `query` off the async threads.
+async fn rank(
+    state: &AppState,
+    query: Signature,
+    q: SearchQuery,
+    exclude: Option<String>,
+    clock: Instant,
+    extract_ms: f64,
+) -> Result<Json<SearchResponse>, AppError> {
+    let app = state.0.clone();
+    let k = q.k.unwrap_or(10);
+    if k == 0 || k > app.config.max_k {
+        return Err(AppError::bad_request(
+            "invalid_query",
+            format!("k must be between 1 and {}", app.config.max_k),
+        ));
+    }
+    let method = q.method.unwrap_or_default();
+    let mut params = app.config.params.similarity.clone();
+    if let Some(w) = q.w {
+        if !(0.0..=1.0).contains(&w) {
+            return Err(AppError::bad_request(
+                "invalid_query",
+                "w must be in [0, 1]",
+            ));
+        }
+        params.ecc_weight = w;
+    }
+    let search_clock = Instant::now();
+    let query_features = query.features.len();
+    let tag = q.tag.clone();
+    let results = app
+        .read_catalog(move |catalog| {
+            let keep = |id: &str| {
+                exclude.as_deref() != Some(id)
+                    && tag
+                        .as_ref()
+                        .is_none_or(|t| catalog.records.get(id).is_some_and(|r| r.tags.contains(t)))
+            };
+            let Ranking {
+                hits,
+                evaluated,
+                pruned,
+            } = catalog.index.search_with(&query, k, method, &params, &keep);
+            let results = hits
+                .into_iter()
+                .enumerate()
+                .map(|(i, hit)| {
+                    let record = catalog.records.get(&hit.id);
+                    SearchHit {
+                        rank: i + 1,
+                        name: record.and_then(|r| r.name.clone()),
+                        tags: record.map(|r| r.tags.clone()).unwrap_or_default(),
+                        class: record.and_then(|r| r.class.clone()),
+                        id: hit.id,
+                        distance: hit.distance,
+                    }
+                })
+                .collect::<Vec<_>>();
+            (results, evaluated, pruned)
+        })
+        .await?;
+    let search_seconds = search_clock.elapsed().as_secs_f64();
+    app.metrics.search_seconds.observe(search_seconds);
+    let (results, evaluated, pruned) = results;
+    Ok(Json(SearchResponse {
+        method,
+        k,
+        results,
+        evaluated,
+        pruned,
+        query_features,
+        timings: Timings {
+            extract_ms,
+            search_ms: search_seconds * 1e3,
+            total_ms: clock.elapsed().as_secs_f64() * 1e3,
+        },
+    }))
+}
+
+/// Search by upload: the stored models most similar to the uploaded mesh.
+#[utoipa::path(
+    post,
+    path = "/v1/search",
+    tag = "search",
+    params(SearchQuery),
+    request_body(description = "The query mesh (raw, with its content type) or a multipart form", content(
+            (MeshFile = "model/obj"),
+            (MeshFile = "model/gltf-binary"),
+            (MeshFile = "model/gltf+json"),
+            (MeshFile = "model/stl"),
+            (MeshFile = "model/ply"),
+            (MeshFile = "model/x-off"),
+            (MeshFile = "application/octet-stream"),
+            (MeshForm = "multipart/form-data")
+        )),
+    responses(
+        (status = 200, description = "Ranked models", body = SearchResponse),
+        (status = 400, description = "Bad query or mesh file", body = ErrorBody),
+        (status = 413, description = "Body or mesh over the limits", body = ErrorBody),
+        (status = 415, description = "Unsupported format", body = ErrorBody),
+        (status = 422, description = "Unusable mesh", body = ErrorBody),
+        (status = 503, description = "Extraction queue full or time limit reached", body = ErrorBody)
+    )
+)]
+pub async fn search(
+    State(state): State<AppState>,
+    query: Result<Query<SearchQuery>, QueryRejection>,
+    upload: MeshUpload,
+) -> Result<Json<SearchResponse>, AppError> {
+    let Query(q) = query?;
+    let clock = Instant::now();
+    let signature = state.0.extract(Arc::new(upload.upload)).await?;
+    let extract_ms = clock.elapsed().as_secs_f64() * 1e3;
+    rank(&state, signature, q, None, clock, extract_ms).await
+}
+
+/// The stored models most similar to a stored model (itself left out).
+#[utoipa::path(
+    get,
+    path = "/v1/models/{id}/similar",
+    tag = "search",
+    params(("id" = String, Path, description = "Model id"), SearchQuery),
+    responses(
+        (status = 200, description = "Ranked models", body = SearchResponse),
+        (status = 400, description = "Bad id or query", body = ErrorBody),
+        (status = 404, description = "No such model", body = ErrorBody)
+    )
+)]
+pub async fn similar(
+    State(state): State<AppState>,
+    id: Result<Path<String>, PathRejection>,
+    query: Result<Query<SearchQuery>, QueryRejection>,
+) -> Result<Json<SearchResponse>, AppError> {
+    let id = id?.0;
+    let Query(q) = query?;
+    check_id(&id)?;
+    let clock = Instant::now();
+    let signature = state
+        .0
+        .catalog
+        .read()
+        .expect("catalog lock poisoned")
+        .index
+        .get(&id)
+        .cloned()
+        .ok_or_else(|| AppError::NotFound(format!("no model {id:?}")))?;
+    rank(&state, signature, q, Some(id), clock, 0.0).await
+}
+
+/// The signature of an uploaded mesh, stored nowhere.
+#[utoipa::path(
+    post,
+    path = "/v1/extract",
+    tag = "search",
+    request_body(description = "The mesh (raw, with its content type) or a multipart form", content(
+            (MeshFile = "model/obj"),
+            (MeshFile = "model/gltf-binary"),
+            (MeshFile = "model/gltf+json"),
+            (MeshFile = "model/stl"),
+            (MeshFile = "model/ply"),
+            (MeshFile = "model/x-off"),
+            (MeshFile = "application/octet-stream"),
+            (MeshForm = "multipart/form-data")
+        )),
+    responses(
+        (status = 200, description = "The signature (see `salient extract --json`)", body = Object),
+        (status = 400, description = "Bad mesh file", body = ErrorBody),
+        (status = 413, description = "Body or mesh over the limits", body = ErrorBody),
+        (status = 415, description = "Unsupported format", body = ErrorBody),
+        (status = 422, description = "Unusable mesh", body = ErrorBody),
+        (status = 503, description = "Extraction queue full or time limit reached", body = ErrorBody)
+    )
+)]
+pub async fn extract(
+    State(state): State<AppState>,
+    upload: MeshUpload,
+) -> Result<Json<Signature>, AppError> {
+    Ok(Json(state.0.extract(Arc::new(upload.upload)).await?))
+}

@@ -1,0 +1,116 @@
+//! `salient serve`: the HTTP service on its sled store.
+
+use std::net::SocketAddr;
+use std::path::PathBuf;
+use std::sync::Arc;
+
+use anyhow::Context;
+
+use salient::api::{app, App, AppState, Config};
+use salient::store::SledStore;
+
+/// Flags override the environment (`SALIENT_*`), which overrides the configuration file,
+/// which overrides the defaults.
+#[derive(Debug, Clone, clap::Args)]
+pub struct Args {
+    /// Address to listen on (port 0 picks a free one).
+    #[arg(long, env = "SALIENT_ADDR")]
+    addr: Option<SocketAddr>,
+    /// Folder of the store (created if missing).
+    #[arg(long, env = "SALIENT_DATA")]
+    data: Option<PathBuf>,
+    /// TOML configuration file (every field of the server configuration).
+    #[arg(long, env = "SALIENT_CONFIG")]
+    config: Option<PathBuf>,
+    /// Extractions running at once.
+    #[arg(long, env = "SALIENT_WORKERS")]
+    workers: Option<usize>,
+    /// Extractions that may wait for a worker before new ones get 503.
+    #[arg(long, env = "SALIENT_QUEUE_DEPTH")]
+    queue_depth: Option<usize>,
+    /// Largest request body, bytes.
+    #[arg(long, env = "SALIENT_MAX_BODY_BYTES")]
+    max_body_bytes: Option<usize>,
+    /// Time limit of a request, seconds.
+    #[arg(long, env = "SALIENT_REQUEST_TIMEOUT_SECS")]
+    request_timeout_secs: Option<u64>,
+    /// Largest vertex count of an uploaded mesh (before welding).
+    #[arg(long, env = "SALIENT_MAX_VERTICES")]
+    max_vertices: Option<usize>,
+    /// Origins allowed by CORS, comma-separated (`*` for any).
+    #[arg(long, env = "SALIENT_CORS_ORIGINS", value_delimiter = ',')]
+    cors_origins: Option<Vec<String>>,
+}
+
+impl Args {
+    /// The configuration these arguments describe.
+    pub fn config(&self) -> anyhow::Result<Config> {
+        let mut config = Config::load(self.config.as_deref())?;
+        let a = self.clone();
+        config.addr = a.addr.unwrap_or(config.addr);
+        config.data = a.data.unwrap_or(config.data);
+        config.workers = a.workers.unwrap_or(config.workers);
+        config.queue_depth = a.queue_depth.unwrap_or(config.queue_depth);
+        config.max_body_bytes = a.max_body_bytes.unwrap_or(config.max_body_bytes);
+        config.request_timeout_secs = a
+            .request_timeout_secs
+            .unwrap_or(config.request_timeout_secs);
+        config.limits.max_input_vertices =
+            a.max_vertices.unwrap_or(config.limits.max_input_vertices);
+        config.cors_origins = a.cors_origins.unwrap_or(config.cors_origins);
+        config.validate().map_err(anyhow::Error::msg)?;
+        Ok(config)
+    }
+}
+
+pub fn run(args: Args) -> anyhow::Result<()> {
+    tracing_subscriber::fmt()
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_default_env()
+                .unwrap_or_else(|_| "info,tower_http=info".into()),
+        )
+        .with_writer(std::io::stderr)
+        .init();
+    let config = args.config()?;
+    let store = SledStore::open(&config.data)
+        .with_context(|| format!("cannot open the store in {}", config.data.display()))?;
+    let addr = config.addr;
+    let app_state = AppState(Arc::new(App::new(config, Arc::new(store))?));
+    let runtime = tokio::runtime::Builder::new_multi_thread()
+        .enable_all()
+        .build()
+        .context("cannot start the async runtime")?;
+    runtime.block_on(async move {
+        let listener = tokio::net::TcpListener::bind(addr)
+            .await
+            .with_context(|| format!("cannot listen on {addr}"))?;
+        let local = listener.local_addr()?;
+        // Tests and scripts read this line to find the port.
+        println!("listening on http://{local}");
+        tracing::info!(%local, models = app_state.0.catalog_len(), "serving");
+        axum::serve(listener, app(app_state))
+            .with_graceful_shutdown(shutdown())
+            .await
+            .context("server failed")
+    })
+}
+
+/// Resolves on Ctrl-C or SIGTERM.
+async fn shutdown() {
+    let ctrl_c = async {
+        let _ = tokio::signal::ctrl_c().await;
+    };
+    #[cfg(unix)]
+    let terminate = async {
+        if let Ok(mut s) = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())
+        {
+            s.recv().await;
+        }
+    };
+    #[cfg(not(unix))]
+    let terminate = std::future::pending::<()>();
+    tokio::select! {
+        () = ctrl_c => {},
+        () = terminate => {},
+    }
+}

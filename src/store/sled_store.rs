@@ -1,0 +1,319 @@
+//! The sled backend.
+//!
+//! sled 0.34 is the last stable release. Durability: every write is one multi-tree
+//! transaction followed by `flush()`, so an acknowledged model survives a crash; an
+//! interrupted write leaves nothing (see `tests/durability.rs`, which kills the server
+//! mid-ingest).
+
+use std::path::Path;
+
+use sled::transaction::{ConflictableTransactionError, TransactionalTree};
+use sled::Transactional;
+
+use super::{sha256_hex, Loaded, ModelRecord, StoreError, StoreResult, Upload};
+
+#[path = "../../migrations/mod.rs"]
+mod migrations;
+
+/// Schema version this code writes (the newest migration).
+pub fn schema_version() -> u32 {
+    migrations::MIGRATIONS.last().map_or(0, |m| m.version)
+}
+
+const VERSION_KEY: &[u8] = b"schema_version";
+
+/// A sled database with the trees of `migrations/v0001_initial.rs`.
+pub struct SledStore {
+    db: sled::Db,
+    models: sled::Tree,
+    signatures: sled::Tree,
+    blobs: sled::Tree,
+    blob_refs: sled::Tree,
+    content: sled::Tree,
+}
+
+fn corrupt(key: &[u8], message: impl ToString) -> StoreError {
+    StoreError::Corrupt {
+        key: String::from_utf8_lossy(key).into_owned(),
+        message: message.to_string(),
+    }
+}
+
+fn decode_record(key: &[u8], bytes: &[u8]) -> StoreResult<ModelRecord> {
+    serde_json::from_slice(bytes).map_err(|e| corrupt(key, e))
+}
+
+fn count(bytes: Option<sled::IVec>) -> u64 {
+    bytes
+        .and_then(|b| <[u8; 8]>::try_from(b.as_ref()).ok())
+        .map_or(0, u64::from_be_bytes)
+}
+
+impl SledStore {
+    /// Opens (creating if needed) the store in `dir` and brings its schema up to date.
+    pub fn open(dir: &Path) -> StoreResult<Self> {
+        let db = sled::open(dir)?;
+        Self::migrate(&db)?;
+        Ok(Self {
+            models: db.open_tree("models")?,
+            signatures: db.open_tree("signatures")?,
+            blobs: db.open_tree("blobs")?,
+            blob_refs: db.open_tree("blob_refs")?,
+            content: db.open_tree("content")?,
+            db,
+        })
+    }
+
+    /// The schema version recorded in the store (0 for a new store).
+    pub fn stored_version(db: &sled::Db) -> StoreResult<u32> {
+        Ok(match db.get(VERSION_KEY)? {
+            None => 0,
+            Some(v) => u32::from_be_bytes(
+                v.as_ref()
+                    .try_into()
+                    .map_err(|_| corrupt(VERSION_KEY, "not a u32"))?,
+            ),
+        })
+    }
+
+    fn migrate(db: &sled::Db) -> StoreResult<()> {
+        let found = Self::stored_version(db)?;
+        let supported = schema_version();
+        if found > supported {
+            return Err(StoreError::Incompatible { found, supported });
+        }
+        for migration in migrations::MIGRATIONS.iter().filter(|m| m.version > found) {
+            tracing::info!(
+                version = migration.version,
+                name = migration.name,
+                "migrating store"
+            );
+            (migration.apply)(db)?;
+            db.insert(VERSION_KEY, &migration.version.to_be_bytes())?;
+            db.flush()?;
+        }
+        Ok(())
+    }
+
+    /// The underlying database (tests write older fixture versions through it).
+    pub fn db(&self) -> &sled::Db {
+        &self.db
+    }
+}
+
+/// Adds one reference to a blob, storing its bytes on the first.
+fn add_blob(
+    blobs: &TransactionalTree,
+    refs: &TransactionalTree,
+    hash: &str,
+    bytes: &[u8],
+) -> Result<(), ConflictableTransactionError<StoreError>> {
+    let n = count(refs.get(hash)?);
+    if n == 0 {
+        blobs.insert(hash, bytes)?;
+    }
+    refs.insert(hash, &(n + 1).to_be_bytes())?;
+    Ok(())
+}
+
+/// Drops one reference to a blob, removing it with the last.
+fn release_blob(
+    blobs: &TransactionalTree,
+    refs: &TransactionalTree,
+    hash: &str,
+) -> Result<(), ConflictableTransactionError<StoreError>> {
+    match count(refs.get(hash)?) {
+        0 | 1 => {
+            refs.remove(hash)?;
+            blobs.remove(hash)?;
+        }
+        n => {
+            refs.insert(hash, &(n - 1).to_be_bytes())?;
+        }
+    }
+    Ok(())
+}
+
+/// Every blob of a record: the mesh, then its resources.
+fn blob_hashes(record: &ModelRecord) -> impl Iterator<Item = &str> {
+    std::iter::once(record.mesh_blob.as_str()).chain(record.resources.values().map(String::as_str))
+}
+
+/// Removes `old` from the trees of a transaction.
+fn unlink(
+    trees: &(
+        TransactionalTree,
+        TransactionalTree,
+        TransactionalTree,
+        TransactionalTree,
+        TransactionalTree,
+    ),
+    old: &ModelRecord,
+) -> Result<(), ConflictableTransactionError<StoreError>> {
+    let (models, signatures, blobs, refs, content) = trees;
+    models.remove(old.id.as_bytes())?;
+    signatures.remove(old.id.as_bytes())?;
+    for hash in blob_hashes(old) {
+        release_blob(blobs, refs, hash)?;
+    }
+    if content.get(&old.content_hash)?.as_deref() == Some(old.id.as_bytes()) {
+        content.remove(old.content_hash.as_bytes())?;
+    }
+    Ok(())
+}
+
+impl super::Store for SledStore {
+    fn put(
+        &self,
+        record: &ModelRecord,
+        signature: &[u8],
+        upload: &Upload,
+    ) -> StoreResult<Option<ModelRecord>> {
+        let encoded = serde_json::to_vec(record).expect("records serialise");
+        let files: Vec<(String, &[u8])> =
+            std::iter::once((record.mesh_blob.clone(), upload.mesh.as_slice()))
+                .chain(
+                    upload
+                        .resources
+                        .values()
+                        .map(|bytes| (sha256_hex(bytes), bytes.as_slice())),
+                )
+                .collect();
+        let trees = (
+            &self.models,
+            &self.signatures,
+            &self.blobs,
+            &self.blob_refs,
+            &self.content,
+        );
+        let previous = trees
+            .transaction(|view| {
+                let (models, signatures, blobs, refs, content) = view;
+                let previous = match models.get(record.id.as_bytes())? {
+                    Some(bytes) => {
+                        let old = decode_record(record.id.as_bytes(), &bytes)
+                            .map_err(ConflictableTransactionError::Abort)?;
+                        unlink(view, &old)?;
+                        Some(old)
+                    }
+                    None => None,
+                };
+                for (hash, bytes) in &files {
+                    add_blob(blobs, refs, hash, bytes)?;
+                }
+                models.insert(record.id.as_bytes(), encoded.as_slice())?;
+                signatures.insert(record.id.as_bytes(), signature)?;
+                content.insert(record.content_hash.as_bytes(), record.id.as_bytes())?;
+                Ok(previous)
+            })
+            .map_err(|e| match e {
+                sled::transaction::TransactionError::Abort(e) => e,
+                sled::transaction::TransactionError::Storage(e) => StoreError::Backend(e),
+            })?;
+        self.db.flush()?;
+        Ok(previous)
+    }
+
+    fn get(&self, id: &str) -> StoreResult<Option<ModelRecord>> {
+        self.models
+            .get(id)?
+            .map(|b| decode_record(id.as_bytes(), &b))
+            .transpose()
+    }
+
+    fn signature(&self, id: &str) -> StoreResult<Option<Vec<u8>>> {
+        Ok(self.signatures.get(id)?.map(|b| b.to_vec()))
+    }
+
+    fn upload(&self, id: &str) -> StoreResult<Option<Upload>> {
+        let Some(record) = self.get(id)? else {
+            return Ok(None);
+        };
+        let blob = |hash: &str| -> StoreResult<Vec<u8>> {
+            self.blobs
+                .get(hash)?
+                .map(|b| b.to_vec())
+                .ok_or_else(|| corrupt(hash.as_bytes(), format!("blob of model {id} missing")))
+        };
+        let resources = record
+            .resources
+            .iter()
+            .map(|(uri, hash)| Ok((uri.clone(), blob(hash)?)))
+            .collect::<StoreResult<_>>()?;
+        Ok(Some(Upload {
+            format: record.format,
+            mesh: blob(&record.mesh_blob)?,
+            resources,
+        }))
+    }
+
+    fn delete(&self, id: &str) -> StoreResult<Option<ModelRecord>> {
+        let trees = (
+            &self.models,
+            &self.signatures,
+            &self.blobs,
+            &self.blob_refs,
+            &self.content,
+        );
+        let removed = trees
+            .transaction(|view| {
+                let Some(bytes) = view.0.get(id.as_bytes())? else {
+                    return Ok(None);
+                };
+                let old = decode_record(id.as_bytes(), &bytes)
+                    .map_err(ConflictableTransactionError::Abort)?;
+                unlink(view, &old)?;
+                Ok(Some(old))
+            })
+            .map_err(|e| match e {
+                sled::transaction::TransactionError::Abort(e) => e,
+                sled::transaction::TransactionError::Storage(e) => StoreError::Backend(e),
+            })?;
+        self.db.flush()?;
+        Ok(removed)
+    }
+
+    fn list(&self, after: Option<&str>, limit: usize) -> StoreResult<Vec<ModelRecord>> {
+        let range = match after {
+            Some(after) => self.models.range::<&[u8], _>((
+                std::ops::Bound::Excluded(after.as_bytes()),
+                std::ops::Bound::Unbounded,
+            )),
+            None => self.models.iter(),
+        };
+        range
+            .take(limit)
+            .map(|entry| {
+                let (key, value) = entry?;
+                decode_record(&key, &value)
+            })
+            .collect()
+    }
+
+    fn find_content(&self, content_hash: &str) -> StoreResult<Option<String>> {
+        Ok(self
+            .content
+            .get(content_hash)?
+            .map(|id| String::from_utf8_lossy(&id).into_owned()))
+    }
+
+    fn load_all(&self) -> StoreResult<Vec<Loaded>> {
+        self.models
+            .iter()
+            .map(|entry| {
+                let (key, value) = entry?;
+                let record = decode_record(&key, &value)?;
+                let signature = self
+                    .signatures
+                    .get(&key)?
+                    .ok_or_else(|| corrupt(&key, "model without signature"))?
+                    .to_vec();
+                Ok(Loaded { record, signature })
+            })
+            .collect()
+    }
+
+    fn len(&self) -> usize {
+        self.models.len()
+    }
+}
