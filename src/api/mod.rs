@@ -75,6 +75,7 @@ impl App {
     pub fn new(config: Config, store: Arc<dyn Store>) -> Result<Self, StartError> {
         let mut records = BTreeMap::new();
         let mut index = Index::new(config.params.similarity.clone());
+        let mut stale = 0;
         for loaded in store.load_all()? {
             let id = loaded.record.id.clone();
             let signature = Signature::from_bytes(&loaded.signature).map_err(|source| {
@@ -83,8 +84,15 @@ impl App {
                     source,
                 }
             })?;
+            let (p, c) = (&signature.params, &config.params);
+            if (&p.mesh, &p.ecc, &p.salient, &p.d2) != (&c.mesh, &c.ecc, &c.salient, &c.d2) {
+                stale += 1;
+            }
             index.insert(id.clone(), signature);
             records.insert(id, loaded.record);
+        }
+        if stale > 0 {
+            tracing::warn!(stale, "models were extracted with other parameters than configured; run `salient reindex`");
         }
         let pool = Pool::new(
             config.workers,

@@ -3,6 +3,7 @@
 
 mod compare;
 mod extract;
+mod reindex;
 mod search;
 mod serve;
 
@@ -34,6 +35,8 @@ enum Command {
     Search(search::Args),
     /// Run the HTTP retrieval service on its store.
     Serve(serve::Args),
+    /// Re-extract every stored model with the current parameters.
+    Reindex(reindex::Args),
 }
 
 pub fn run(cli: Cli) -> anyhow::Result<()> {
@@ -48,6 +51,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Compare(args) => compare::run(args),
         Command::Search(args) => search::run(args),
         Command::Serve(args) => serve::run(args),
+        Command::Reindex(args) => reindex::run(args),
     }
 }
 
