@@ -1,0 +1,169 @@
+//! The sled store: migrations at open, refusal of newer stores, deduplicated files, and the
+//! `reindex` command.
+
+mod server;
+mod shapes;
+
+use std::collections::BTreeMap;
+
+use salient::mesh::Format;
+use salient::store::{sha256_hex, ModelRecord, SledStore, Store, StoreError, Upload};
+
+fn record(id: &str, upload: &Upload) -> ModelRecord {
+    let (mesh_blob, resources) = upload.blobs();
+    ModelRecord {
+        id: id.into(),
+        name: None,
+        tags: vec![],
+        class: None,
+        content_hash: upload.content_hash(),
+        format: upload.format,
+        mesh_blob,
+        resources,
+        vertices: 4,
+        triangles: 4,
+        features: 1,
+        params_version: 1,
+        created_unix: 0,
+        updated_unix: 0,
+    }
+}
+
+fn upload(bytes: &[u8]) -> Upload {
+    Upload {
+        format: Format::Obj,
+        mesh: bytes.to_vec(),
+        resources: BTreeMap::new(),
+    }
+}
+
+/// Version 0 is a store with no schema key (as sled leaves a new folder, or as a store
+/// predating versioning would be): opening it applies every migration.
+#[test]
+fn a_version_0_store_is_migrated_at_open() {
+    let dir = tempfile::tempdir().unwrap();
+    {
+        let db = sled::open(dir.path()).unwrap();
+        db.insert(b"unrelated", b"kept").unwrap();
+        db.flush().unwrap();
+        assert_eq!(SledStore::stored_version(&db).unwrap(), 0);
+    }
+    let store = SledStore::open(dir.path()).unwrap();
+    assert_eq!(SledStore::stored_version(store.db()).unwrap(), 1);
+    let names: Vec<_> = store
+        .db()
+        .tree_names()
+        .into_iter()
+        .map(|n| String::from_utf8(n.to_vec()).unwrap())
+        .collect();
+    for tree in ["models", "signatures", "blobs", "blob_refs", "content"] {
+        assert!(names.contains(&tree.to_string()), "{names:?}");
+    }
+    assert_eq!(
+        store.db().get(b"unrelated").unwrap().as_deref(),
+        Some(&b"kept"[..])
+    );
+    assert!(store.is_empty());
+}
+
+#[test]
+fn a_store_from_a_newer_salient_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    {
+        let db = sled::open(dir.path()).unwrap();
+        db.insert(b"schema_version", &99u32.to_be_bytes()).unwrap();
+        db.flush().unwrap();
+    }
+    match SledStore::open(dir.path()) {
+        Err(StoreError::Incompatible {
+            found: 99,
+            supported: 1,
+        }) => {}
+        other => panic!("expected a refusal, got {:?}", other.map(|_| ())),
+    }
+}
+
+#[test]
+fn files_are_deduplicated_and_released_with_their_last_model() {
+    let dir = tempfile::tempdir().unwrap();
+    let store = SledStore::open(dir.path()).unwrap();
+    let (a, b) = (upload(b"v 0 0 0\n"), upload(b"v 1 1 1\n"));
+    store.put(&record("one", &a), b"sig1", &a).unwrap();
+    store.put(&record("two", &a), b"sig2", &a).unwrap();
+    let blobs = store.db().open_tree("blobs").unwrap();
+    assert_eq!(blobs.len(), 1);
+    assert_eq!(
+        store.find_content(&a.content_hash()).unwrap().as_deref(),
+        Some("two")
+    );
+
+    // Replacing "two" with other content keeps "one"'s file.
+    let replaced = store.put(&record("two", &b), b"sig3", &b).unwrap();
+    assert_eq!(replaced.unwrap().content_hash, a.content_hash());
+    assert_eq!(blobs.len(), 2);
+    assert_eq!(store.upload("one").unwrap().unwrap().mesh, a.mesh);
+    assert_eq!(
+        store.signature("two").unwrap().as_deref(),
+        Some(&b"sig3"[..])
+    );
+
+    assert!(store.delete("one").unwrap().is_some());
+    assert_eq!(blobs.len(), 1);
+    assert!(blobs.get(sha256_hex(&a.mesh)).unwrap().is_none());
+    assert!(store.delete("one").unwrap().is_none());
+    assert_eq!(store.list(None, 10).unwrap().len(), 1);
+
+    // Reopening finds everything as it was.
+    drop(blobs);
+    drop(store);
+    let store = SledStore::open(dir.path()).unwrap();
+    assert_eq!(store.upload("two").unwrap().unwrap().mesh, b.mesh);
+    assert_eq!(store.load_all().unwrap().len(), 1);
+}
+
+/// `salient reindex` re-extracts every stored model with new parameters.
+#[tokio::test]
+async fn reindex_re_extracts_with_new_parameters() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = dir.path().join("store");
+    {
+        let server = server::Server::start(&data, &[]);
+        let client = reqwest::Client::new();
+        for (id, mesh) in [
+            ("star", shapes::star(3, &shapes::five_tips())),
+            ("cone", shapes::cone(0.5, 30, 32)),
+        ] {
+            let response = client
+                .post(server.at(&format!("/v1/models?id={id}")))
+                .header("content-type", "model/obj")
+                .body(server::obj(&mesh))
+                .send()
+                .await
+                .unwrap();
+            assert_eq!(response.status(), reqwest::StatusCode::CREATED);
+        }
+    }
+    let params = dir.path().join("params.json");
+    std::fs::write(&params, r#"{"d2": {"samples": 500}}"#).unwrap();
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_salient"))
+        .args([
+            "reindex",
+            "--data",
+            data.to_str().unwrap(),
+            "--params",
+            params.to_str().unwrap(),
+        ])
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(String::from_utf8_lossy(&out.stdout).contains("re-extracted 2 of 2"));
+    let store = SledStore::open(&data).unwrap();
+    for loaded in store.load_all().unwrap() {
+        let signature = salient::Signature::from_bytes(&loaded.signature).unwrap();
+        assert_eq!(signature.params.d2.samples, 500, "{}", loaded.record.id);
+    }
+}
