@@ -168,25 +168,8 @@ impl Index {
     ) -> Ranking {
         match method {
             Method::Ecc => self.search_pruned(query, k, keep),
-            Method::D2 => {
-                let mut hits: Vec<Hit> = self
-                    .entries
-                    .par_iter()
-                    .filter(|e| keep(&e.id))
-                    .map(|e| Hit {
-                        id: e.id.clone(),
-                        distance: d2_distance(query, &e.signature),
-                    })
-                    .collect();
-                let evaluated = hits.len();
-                sort_hits(&mut hits);
-                hits.truncate(k);
-                Ranking {
-                    hits,
-                    evaluated,
-                    pruned: 0,
-                }
-            }
+            // A D2 distance costs less than any bound would.
+            Method::D2 => self.exhaustive(query, k, method, &self.params, keep),
         }
     }
 
@@ -204,6 +187,22 @@ impl Index {
         if method == Method::D2 || *params == self.params {
             return self.search_where(query, k, method, keep);
         }
+        self.exhaustive(query, k, method, params, keep)
+    }
+
+    /// Every entry's exact distance, no pruning: the reference the pruned search must match.
+    pub fn search_exhaustive(&self, query: &Signature, k: usize, method: Method) -> Ranking {
+        self.exhaustive(query, k, method, &self.params, &|_| true)
+    }
+
+    fn exhaustive(
+        &self,
+        query: &Signature,
+        k: usize,
+        method: Method,
+        params: &SimilarityParams,
+        keep: &(dyn Fn(&str) -> bool + Sync),
+    ) -> Ranking {
         let mut hits: Vec<Hit> = self
             .entries
             .par_iter()
@@ -219,26 +218,6 @@ impl Index {
         Ranking {
             hits,
             evaluated,
-            pruned: 0,
-        }
-    }
-
-    /// Every entry's exact distance, no pruning: the reference the pruned search must match.
-    pub fn search_exhaustive(&self, query: &Signature, k: usize, method: Method) -> Ranking {
-        let params = &self.params;
-        let mut hits: Vec<Hit> = self
-            .entries
-            .par_iter()
-            .map(|e| Hit {
-                id: e.id.clone(),
-                distance: distance(method, query, &e.signature, params),
-            })
-            .collect();
-        sort_hits(&mut hits);
-        hits.truncate(k);
-        Ranking {
-            hits,
-            evaluated: self.entries.len(),
             pruned: 0,
         }
     }

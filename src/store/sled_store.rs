@@ -43,6 +43,14 @@ fn decode_record(key: &[u8], bytes: &[u8]) -> StoreResult<ModelRecord> {
     serde_json::from_slice(bytes).map_err(|e| corrupt(key, e))
 }
 
+/// A failed transaction: our own abort, or the backend's error.
+fn transaction_error(e: sled::transaction::TransactionError<StoreError>) -> StoreError {
+    match e {
+        sled::transaction::TransactionError::Abort(e) => e,
+        sled::transaction::TransactionError::Storage(e) => StoreError::Backend(e),
+    }
+}
+
 fn count(bytes: Option<sled::IVec>) -> u64 {
     bytes
         .and_then(|b| <[u8; 8]>::try_from(b.as_ref()).ok())
@@ -206,10 +214,7 @@ impl super::Store for SledStore {
                 content.insert(record.content_hash.as_bytes(), record.id.as_bytes())?;
                 Ok(previous)
             })
-            .map_err(|e| match e {
-                sled::transaction::TransactionError::Abort(e) => e,
-                sled::transaction::TransactionError::Storage(e) => StoreError::Backend(e),
-            })?;
+            .map_err(transaction_error)?;
         self.db.flush()?;
         Ok(previous)
     }
@@ -265,10 +270,7 @@ impl super::Store for SledStore {
                 unlink(view, &old)?;
                 Ok(Some(old))
             })
-            .map_err(|e| match e {
-                sled::transaction::TransactionError::Abort(e) => e,
-                sled::transaction::TransactionError::Storage(e) => StoreError::Backend(e),
-            })?;
+            .map_err(transaction_error)?;
         self.db.flush()?;
         Ok(removed)
     }
