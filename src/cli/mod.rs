@@ -3,6 +3,8 @@
 
 mod compare;
 mod extract;
+mod health;
+mod ingest;
 mod search;
 mod serve;
 
@@ -34,6 +36,12 @@ enum Command {
     Search(search::Args),
     /// Run the HTTP retrieval service on its store.
     Serve(serve::Args),
+    /// Upload every mesh of a folder to a running service.
+    Ingest(ingest::Args),
+    /// Check that a running service answers (exit code 0 if it does).
+    Health(health::Args),
+    /// Print the service's OpenAPI description (the committed `openapi.yaml`).
+    Openapi,
 }
 
 pub fn run(cli: Cli) -> anyhow::Result<()> {
@@ -48,6 +56,12 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Compare(args) => compare::run(args),
         Command::Search(args) => search::run(args),
         Command::Serve(args) => serve::run(args),
+        Command::Ingest(args) => ingest::run(args),
+        Command::Health(args) => health::run(args),
+        Command::Openapi => {
+            print!("{}", salient::api::openapi_yaml());
+            Ok(())
+        }
     }
 }
 
