@@ -14,7 +14,8 @@
 //! - [`rank`]: top-k ranking of an in-memory collection with bound-based pruning;
 //! - [`collection`]: mesh folders and a disk cache of their signatures;
 //! - [`store`]: persistent models, signatures and original files (sled);
-//! - [`api`]: the HTTP service (SPEC §8).
+//! - [`api`]: the HTTP service (SPEC §8);
+//! - [`ingest`]: planning a bulk upload of a mesh folder to the service (`salient ingest`).
 
 pub mod api;
 pub mod collection;
@@ -24,6 +25,7 @@ pub mod emd;
 pub mod error;
 pub mod extract;
 pub mod geodesic;
+pub mod ingest;
 pub mod mesh;
 pub mod params;
 pub mod rank;

@@ -10,7 +10,7 @@ use axum::Json;
 use serde::{Deserialize, Serialize};
 
 use super::error::{AppError, ErrorBody};
-use super::upload::{check_id, MeshFile, MeshForm, MeshUpload, ModelFields};
+use super::upload::{check_id, MeshFile, MeshForm, MeshUpload, ModelFields, ModelPath};
 use super::AppState;
 use crate::params::PARAMS_VERSION;
 use crate::signature::Signature;
@@ -140,6 +140,7 @@ pub async fn add_model(
 #[into_params(parameter_in = Query)]
 pub struct ListQuery {
     /// Page size, 1–1000 (default 100).
+    #[param(minimum = 1, maximum = 1000)]
     pub limit: Option<usize>,
     /// Return models with ids after this one (the `next` of the previous page).
     pub after: Option<String>,
@@ -218,7 +219,7 @@ fn record_of(state: &AppState, id: &str) -> Result<ModelRecord, AppError> {
     get,
     path = "/v1/models/{id}",
     tag = "models",
-    params(("id" = String, Path, description = "Model id")),
+    params(ModelPath),
     responses(
         (status = 200, description = "The model", body = ModelRecord),
         (status = 400, description = "Invalid id", body = ErrorBody),
@@ -227,9 +228,9 @@ fn record_of(state: &AppState, id: &str) -> Result<ModelRecord, AppError> {
 )]
 pub async fn get_model(
     State(state): State<AppState>,
-    id: Result<Path<String>, PathRejection>,
+    id: Result<Path<ModelPath>, PathRejection>,
 ) -> Result<Json<ModelRecord>, AppError> {
-    Ok(Json(record_of(&state, &id?.0)?))
+    Ok(Json(record_of(&state, &id?.0.id)?))
 }
 
 /// Delete a model (its files go when no other model uses them).
@@ -237,7 +238,7 @@ pub async fn get_model(
     delete,
     path = "/v1/models/{id}",
     tag = "models",
-    params(("id" = String, Path, description = "Model id")),
+    params(ModelPath),
     responses(
         (status = 204, description = "Deleted"),
         (status = 400, description = "Invalid id", body = ErrorBody),
@@ -246,9 +247,9 @@ pub async fn get_model(
 )]
 pub async fn delete_model(
     State(state): State<AppState>,
-    id: Result<Path<String>, PathRejection>,
+    id: Result<Path<ModelPath>, PathRejection>,
 ) -> Result<StatusCode, AppError> {
-    let id = id?.0;
+    let id = id?.0.id;
     check_id(&id)?;
     let app = &state.0;
     let _write = app.writes.lock().await;
@@ -272,7 +273,7 @@ pub async fn delete_model(
     get,
     path = "/v1/models/{id}/signature",
     tag = "models",
-    params(("id" = String, Path, description = "Model id")),
+    params(ModelPath),
     responses(
         (status = 200, description = "The signature (see `salient extract --json`)", body = Object),
         (status = 400, description = "Invalid id", body = ErrorBody),
@@ -281,9 +282,9 @@ pub async fn delete_model(
 )]
 pub async fn get_signature(
     State(state): State<AppState>,
-    id: Result<Path<String>, PathRejection>,
+    id: Result<Path<ModelPath>, PathRejection>,
 ) -> Result<Json<Signature>, AppError> {
-    let id = id?.0;
+    let id = id?.0.id;
     record_of(&state, &id)?;
     let catalog = state.0.catalog.read().expect("catalog lock poisoned");
     catalog

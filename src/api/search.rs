@@ -9,7 +9,7 @@ use axum::Json;
 use serde::{Deserialize, Serialize};
 
 use super::error::{AppError, ErrorBody};
-use super::upload::{check_id, MeshFile, MeshForm, MeshUpload};
+use super::upload::{check_id, MeshFile, MeshForm, MeshUpload, ModelPath};
 use super::AppState;
 use crate::rank::{Method, Ranking};
 use crate::signature::Signature;
@@ -18,13 +18,15 @@ use crate::signature::Signature;
 #[derive(Debug, Deserialize, utoipa::IntoParams)]
 #[into_params(parameter_in = Query)]
 pub struct SearchQuery {
-    /// Number of results (default 10).
+    /// Number of results (default 10; at most the server's `max_k`, 1000 by default).
+    #[param(minimum = 1)]
     pub k: Option<usize>,
     /// `ecc` (salient features, penalised EMD; default) or `d2` (global shape distribution).
-    #[param(value_type = Option<String>)]
+    #[param(value_type = Option<String>, pattern = "^(ecc|d2)$")]
     pub method: Option<Method>,
     /// Weight `W` of the ECC distance against the region D2 distance, in [0, 1]. A value other
     /// than the configured one ranks without the bound-based pruning, so it is slower.
+    #[param(minimum = 0.0, maximum = 1.0)]
     pub w: Option<f64>,
     /// Only models with this tag.
     pub tag: Option<String>,
@@ -187,7 +189,7 @@ pub async fn search(
     get,
     path = "/v1/models/{id}/similar",
     tag = "search",
-    params(("id" = String, Path, description = "Model id"), SearchQuery),
+    params(ModelPath, SearchQuery),
     responses(
         (status = 200, description = "Ranked models", body = SearchResponse),
         (status = 400, description = "Bad id or query", body = ErrorBody),
@@ -196,10 +198,10 @@ pub async fn search(
 )]
 pub async fn similar(
     State(state): State<AppState>,
-    id: Result<Path<String>, PathRejection>,
+    id: Result<Path<ModelPath>, PathRejection>,
     query: Result<Query<SearchQuery>, QueryRejection>,
 ) -> Result<Json<SearchResponse>, AppError> {
-    let id = id?.0;
+    let id = id?.0.id;
     let Query(q) = query?;
     check_id(&id)?;
     let clock = Instant::now();

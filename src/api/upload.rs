@@ -18,6 +18,7 @@ use crate::store::Upload;
 pub struct ModelFields {
     /// Model id: letters, digits, `.`, `_`, `-`, at most 128, not starting with `.`.
     /// Defaults to the first 16 hex digits of the content hash.
+    #[param(pattern = "^[A-Za-z0-9_-][A-Za-z0-9._-]{0,127}$")]
     pub id: Option<String>,
     pub name: Option<String>,
     /// Comma-separated tags.
@@ -40,6 +41,16 @@ impl ModelFields {
             .map(String::from)
             .collect()
     }
+}
+
+/// The `{id}` of a model's routes; the pattern states [`check_id`]'s rule in the API
+/// description.
+#[derive(Debug, Deserialize, utoipa::IntoParams)]
+#[into_params(parameter_in = Path)]
+pub struct ModelPath {
+    /// Model id.
+    #[param(pattern = "^[A-Za-z0-9_-][A-Za-z0-9._-]{0,127}$")]
+    pub id: String,
 }
 
 /// A mesh file in a request body (documentation type for the OpenAPI description).

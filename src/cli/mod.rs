@@ -3,6 +3,8 @@
 
 mod compare;
 mod extract;
+mod health;
+mod ingest;
 mod reindex;
 mod search;
 mod serve;
@@ -37,6 +39,12 @@ enum Command {
     Serve(serve::Args),
     /// Re-extract every stored model with the current parameters.
     Reindex(reindex::Args),
+    /// Upload every mesh of a folder to a running service.
+    Ingest(ingest::Args),
+    /// Check that a running service answers (exit code 0 if it does).
+    Health(health::Args),
+    /// Print the service's OpenAPI description (the committed `openapi.yaml`).
+    Openapi,
 }
 
 pub fn run(cli: Cli) -> anyhow::Result<()> {
@@ -52,6 +60,12 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Search(args) => search::run(args),
         Command::Serve(args) => serve::run(args),
         Command::Reindex(args) => reindex::run(args),
+        Command::Ingest(args) => ingest::run(args),
+        Command::Health(args) => health::run(args),
+        Command::Openapi => {
+            print!("{}", salient::api::openapi_yaml());
+            Ok(())
+        }
     }
 }
 

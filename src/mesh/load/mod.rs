@@ -104,6 +104,19 @@ impl Format {
         }
     }
 
+    /// The content type a client sends a file of this format with (the inverse of
+    /// [`Format::from_content_type`]).
+    pub fn media_type(self) -> &'static str {
+        match self {
+            Format::Obj => "model/obj",
+            Format::Gltf => "model/gltf+json",
+            Format::Glb => "model/gltf-binary",
+            Format::Off => "model/x-off",
+            Format::Ply => "model/ply",
+            Format::Stl => "model/stl",
+        }
+    }
+
     /// Recognises a format from the first bytes (magic numbers and first keywords), for uploads
     /// without a usable name or content type.
     pub fn sniff(bytes: &[u8]) -> Option<Format> {

@@ -1,0 +1,263 @@
+//! `salient ingest` against the real server on a loopback port with a fresh store: a folder
+//! goes in, a second run skips it, a corrupt file fails alone, and an overloaded server still
+//! gets everything thanks to retries.
+
+mod shapes;
+
+use std::io::{BufRead, BufReader};
+use std::path::Path;
+use std::process::{Child, Command, Output, Stdio};
+
+use glam::DMat4;
+use salient::mesh::RawMesh;
+use serde_json::Value;
+
+const BIN: &str = env!("CARGO_BIN_EXE_salient");
+
+/// `salient serve` on a free port with its store in a temporary folder; killed on drop.
+struct Server {
+    child: Child,
+    url: String,
+    _data: tempfile::TempDir,
+}
+
+impl Server {
+    fn start(flags: &[&str]) -> Server {
+        let data = tempfile::tempdir().unwrap();
+        let mut child = Command::new(BIN)
+            .args(["serve", "--addr", "127.0.0.1:0", "--data"])
+            .arg(data.path())
+            .args(flags)
+            .env("RUST_LOG", "warn")
+            .stdout(Stdio::piped())
+            .stderr(Stdio::null())
+            .spawn()
+            .expect("the server starts");
+        let mut line = String::new();
+        BufReader::new(child.stdout.take().unwrap())
+            .read_line(&mut line)
+            .unwrap();
+        let url = line
+            .trim()
+            .strip_prefix("listening on ")
+            .unwrap_or_else(|| panic!("unexpected first line {line:?}"))
+            .to_string();
+        Server {
+            child,
+            url,
+            _data: data,
+        }
+    }
+
+    fn get(&self, path: &str) -> String {
+        let url = format!("{}{path}", self.url);
+        tokio::runtime::Builder::new_current_thread()
+            .enable_all()
+            .build()
+            .unwrap()
+            .block_on(async { reqwest::get(url).await?.error_for_status()?.text().await })
+            .unwrap()
+    }
+
+    /// Every stored model, by id.
+    fn models(&self) -> Vec<Value> {
+        let page: Value = serde_json::from_str(&self.get("/v1/models?limit=1000")).unwrap();
+        page["models"].as_array().unwrap().clone()
+    }
+}
+
+impl Drop for Server {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+fn write_obj(path: &Path, mesh: &RawMesh) {
+    std::fs::create_dir_all(path.parent().unwrap()).unwrap();
+    let mut text = String::new();
+    for p in &mesh.positions {
+        text += &format!("v {} {} {}\n", p.x, p.y, p.z);
+    }
+    for t in &mesh.triangles {
+        text += &format!("f {} {} {}\n", t[0] + 1, t[1] + 1, t[2] + 1);
+    }
+    std::fs::write(path, text).unwrap();
+}
+
+fn copy_fixture(name: &str, to: &Path) {
+    std::fs::create_dir_all(to.parent().unwrap()).unwrap();
+    let from = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/fixtures")
+        .join(name);
+    std::fs::copy(from, to).unwrap();
+}
+
+/// Runs `salient ingest DIR --server URL --json …`: the output and the parsed summary.
+fn ingest(dir: &Path, server: &Server, flags: &[&str]) -> (Output, Value) {
+    let out = Command::new(BIN)
+        .arg("ingest")
+        .arg(dir)
+        .args(["--server", &server.url, "--json"])
+        .args(flags)
+        .output()
+        .expect("the client runs");
+    let summary = serde_json::from_slice(&out.stdout).unwrap_or_else(|e| {
+        panic!(
+            "no JSON summary ({e}); stdout {:?}, stderr {:?}",
+            String::from_utf8_lossy(&out.stdout),
+            String::from_utf8_lossy(&out.stderr)
+        )
+    });
+    (out, summary)
+}
+
+fn counts(summary: &Value) -> [u64; 4] {
+    ["files", "added", "skipped", "failed"].map(|k| summary[k].as_u64().unwrap())
+}
+
+#[test]
+fn ingests_a_folder_then_skips_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let root = dir.path();
+    copy_fixture("capod_horse_m155.obj", &root.join("capod_horse_m155.obj"));
+    copy_fixture("gltf_external/tetra.gltf", &root.join("gltf/tetra.gltf"));
+    copy_fixture("gltf_external/tetra.bin", &root.join("gltf/tetra.bin"));
+    write_obj(&root.join("shapes/sphere.obj"), &shapes::icosphere(3));
+    write_obj(
+        &root.join("shapes/star.obj"),
+        &shapes::star(4, &shapes::five_tips()),
+    );
+    write_obj(&root.join("shapes/cone.obj"), &shapes::cone(0.5, 40, 48));
+    let server = Server::start(&[]);
+
+    let (out, summary) = ingest(
+        root,
+        &server,
+        &["--class-from-folder", "--tags", "test,bulk"],
+    );
+    assert!(out.status.success(), "{summary}");
+    assert_eq!(counts(&summary), [5, 5, 0, 0], "{summary}");
+    let models = server.models();
+    let listed: Vec<_> = models
+        .iter()
+        .map(|m| {
+            (
+                m["id"].as_str().unwrap(),
+                m["name"].as_str().unwrap(),
+                m["class"].as_str(),
+            )
+        })
+        .collect();
+    assert_eq!(
+        listed,
+        [
+            ("capod_horse_m155", "capod_horse_m155", None),
+            ("gltf-tetra", "tetra", Some("gltf")),
+            ("shapes-cone", "cone", Some("shapes")),
+            ("shapes-sphere", "sphere", Some("shapes")),
+            ("shapes-star", "star", Some("shapes")),
+        ]
+    );
+    assert!(models
+        .iter()
+        .all(|m| m["tags"] == serde_json::json!(["test", "bulk"])));
+    assert_eq!(models[1]["format"], "gltf");
+    assert_eq!(models[1]["resources"].as_object().unwrap().len(), 1);
+
+    let (out, summary) = ingest(root, &server, &["--class-from-folder"]);
+    assert!(out.status.success(), "{summary}");
+    assert_eq!(counts(&summary), [5, 0, 5, 0], "{summary}");
+    assert_eq!(server.models(), models, "a second run changes nothing");
+}
+
+#[test]
+fn a_corrupt_file_fails_with_its_reason_while_the_rest_succeed() {
+    let dir = tempfile::tempdir().unwrap();
+    let root = dir.path();
+    write_obj(&root.join("good.obj"), &shapes::icosphere(2));
+    std::fs::write(
+        root.join("broken.obj"),
+        "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 9\n",
+    )
+    .unwrap();
+    // A multi-file glTF without its buffer fails before anything is sent.
+    copy_fixture("gltf_external/tetra.gltf", &root.join("lonely.gltf"));
+    let server = Server::start(&[]);
+
+    let (out, summary) = ingest(root, &server, &[]);
+    assert_eq!(out.status.code(), Some(1));
+    assert_eq!(counts(&summary), [3, 1, 0, 2], "{summary}");
+    let failures = summary["failures"].as_array().unwrap();
+    assert_eq!(failures[0]["path"], "broken.obj");
+    assert_eq!(failures[0]["id"], "broken");
+    let reason = failures[0]["reason"].as_str().unwrap();
+    assert!(
+        reason.starts_with("HTTP 400 bad_mesh:") && reason.contains("vertex 8"),
+        "{reason}"
+    );
+    assert_eq!(failures[1]["path"], "lonely.gltf");
+    assert!(
+        failures[1]["reason"]
+            .as_str()
+            .unwrap()
+            .contains("tetra.bin"),
+        "{summary}"
+    );
+    assert!(String::from_utf8_lossy(&out.stderr).contains("error: 2 of 3 files failed"));
+    let ids: Vec<_> = server.models().iter().map(|m| m["id"].clone()).collect();
+    assert_eq!(ids, ["good"]);
+}
+
+#[test]
+fn an_overloaded_server_still_gets_everything() {
+    let dir = tempfile::tempdir().unwrap();
+    let star = shapes::star(4, &shapes::five_tips());
+    for seed in 0..6 {
+        let motion: DMat4 = shapes::random_motion(seed);
+        write_obj(
+            &dir.path().join(format!("star{seed}.obj")),
+            &shapes::transformed(&star, motion),
+        );
+    }
+    // One extraction at a time and no queue: concurrent uploads get 503 with Retry-After.
+    let server = Server::start(&["--workers", "1", "--queue-depth", "0"]);
+
+    let (out, summary) = ingest(dir.path(), &server, &["--concurrency", "4"]);
+    assert!(out.status.success(), "{summary}");
+    assert_eq!(counts(&summary), [6, 6, 0, 0], "{summary}");
+    assert!(summary["retries"].as_u64().unwrap() > 0, "{summary}");
+    let metrics = server.get("/metrics");
+    assert!(
+        metrics.contains(r#"route="/v1/models",status="503""#),
+        "the server did turn uploads away"
+    );
+    assert_eq!(server.models().len(), 6);
+}
+
+#[test]
+fn an_unreachable_server_ends_the_run_at_once() {
+    let dir = tempfile::tempdir().unwrap();
+    write_obj(&dir.path().join("a.obj"), &shapes::icosphere(1));
+    // A port that was free a moment ago.
+    let port = std::net::TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port();
+    let out = Command::new(BIN)
+        .arg("ingest")
+        .arg(dir.path())
+        .args([
+            "--server",
+            &format!("http://127.0.0.1:{port}"),
+            "--attempts",
+            "2",
+        ])
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(1));
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(stderr.contains("cannot reach the server"), "{stderr}");
+    assert!(stderr.contains("gave up after 2 attempts"), "{stderr}");
+}
