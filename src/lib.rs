@@ -19,6 +19,7 @@ pub mod descriptor;
 pub mod ecc;
 pub mod emd;
 pub mod error;
+pub mod eval;
 pub mod extract;
 pub mod geodesic;
 pub mod mesh;

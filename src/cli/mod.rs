@@ -2,6 +2,7 @@
 //! results into output; the method itself lives in the library.
 
 mod compare;
+mod eval;
 mod extract;
 mod search;
 
@@ -31,6 +32,8 @@ enum Command {
     Compare(compare::Args),
     /// Rank the meshes of a folder by similarity to a query.
     Search(search::Args),
+    /// Evaluate the method (SPEC §7): retrieval measures, robustness, parameter study.
+    Eval(eval::Args),
 }
 
 pub fn run(cli: Cli) -> anyhow::Result<()> {
@@ -44,6 +47,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Extract(args) => extract::run(args),
         Command::Compare(args) => compare::run(args),
         Command::Search(args) => search::run(args),
+        Command::Eval(args) => eval::run(args),
     }
 }
 
