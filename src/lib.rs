@@ -25,6 +25,7 @@ pub mod geodesic;
 pub mod mesh;
 pub mod params;
 pub mod rank;
+pub mod render;
 pub mod salient;
 pub mod signature;
 pub mod similarity;

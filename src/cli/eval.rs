@@ -6,10 +6,12 @@ use std::sync::Mutex;
 use anyhow::Context;
 use indicatif::{ProgressBar, ProgressStyle};
 
-use salient::collection::SignatureCache;
+use salient::collection::{SignatureCache, CACHE_DIR};
 use salient::eval::retrieval::{self, EvalMethod};
+use salient::eval::{robustness, study};
 use salient::eval::{LabelledCollection, Progress};
-use salient::{Limits, Params};
+use salient::mesh::load_path;
+use salient::Limits;
 
 #[derive(Debug, clap::Args)]
 pub struct Args {
@@ -22,6 +24,37 @@ enum Command {
     /// Leave-one-out retrieval over a labelled collection (CLASS/MODEL.ext or labels.tsv):
     /// NN, FT, ST, E, DCG, mAP and precision–recall per method.
     Retrieval(RetrievalArgs),
+    /// Re-extract one mesh simplified, noisy and moved; count the salient points found again.
+    Robustness(RobustnessArgs),
+    /// Vary W, the penalty, K, flat_max and D_g one at a time; tune on half of each class,
+    /// judge on the other half.
+    Study(StudyArgs),
+}
+
+#[derive(Debug, clap::Args)]
+struct StudyArgs {
+    /// The labelled collection.
+    dir: PathBuf,
+    /// Where study.json and study.md go.
+    #[arg(long, default_value = "salient-study")]
+    out: PathBuf,
+    #[command(flatten)]
+    common: Common,
+}
+
+#[derive(Debug, clap::Args)]
+struct RobustnessArgs {
+    /// The mesh file.
+    mesh: PathBuf,
+    /// Where robustness.json and robustness.md go.
+    #[arg(long, default_value = "salient-robustness")]
+    out: PathBuf,
+    /// Seed of the noise and the motion.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Parameters as JSON (fields left out keep the SPEC defaults).
+    #[arg(long)]
+    params: Option<PathBuf>,
 }
 
 #[derive(Debug, clap::Args)]
@@ -50,29 +83,63 @@ struct Common {
 }
 
 impl Common {
-    fn cache(&self, collection: &Path, params: &Params) -> SignatureCache {
-        match &self.cache_dir {
-            Some(dir) => SignatureCache::new(dir, params),
-            None => SignatureCache::beside(collection, params),
-        }
+    fn cache_dir(&self, collection: &Path) -> PathBuf {
+        self.cache_dir
+            .clone()
+            .unwrap_or_else(|| collection.join(CACHE_DIR))
     }
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
     match args.command {
         Command::Retrieval(args) => retrieval(args),
+        Command::Robustness(args) => robustness(args),
+        Command::Study(args) => study(args),
     }
+}
+
+fn study(args: StudyArgs) -> anyhow::Result<()> {
+    let params = super::load_params(args.common.params.as_ref())?;
+    params.validate()?;
+    let collection = LabelledCollection::open(&args.dir)?;
+    let cache_dir = args.common.cache_dir(&args.dir);
+    let report = study::run(
+        &collection,
+        &params,
+        &cache_dir,
+        &Limits::default(),
+        &Bar::default(),
+    )?;
+    report
+        .write(&args.out)
+        .with_context(|| format!("writing the report into {}", args.out.display()))?;
+    print!("{}", report.markdown());
+    Ok(())
+}
+
+fn robustness(args: RobustnessArgs) -> anyhow::Result<()> {
+    let params = super::load_params(args.params.as_ref())?;
+    let raw = load_path(&args.mesh, &Limits::default())
+        .with_context(|| args.mesh.display().to_string())?;
+    let report = robustness::run(&args.mesh.display().to_string(), &raw, &params, args.seed)
+        .with_context(|| args.mesh.display().to_string())?;
+    report
+        .write(&args.out)
+        .with_context(|| format!("writing the report into {}", args.out.display()))?;
+    print!("{}", report.markdown());
+    Ok(())
 }
 
 fn retrieval(args: RetrievalArgs) -> anyhow::Result<()> {
     let params = super::load_params(args.common.params.as_ref())?;
     params.validate()?;
     let collection = LabelledCollection::open(&args.dir)?;
+    let cache_dir = args.common.cache_dir(&args.dir);
     let (report, matrices) = retrieval::run(
         &collection,
         &args.methods,
         &params,
-        |p| args.common.cache(&args.dir, p),
+        |p| SignatureCache::new(&cache_dir, p),
         &Limits::default(),
         &Bar::default(),
     )?;

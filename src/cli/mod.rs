@@ -4,6 +4,7 @@
 mod compare;
 mod eval;
 mod extract;
+mod render;
 mod search;
 
 use std::path::PathBuf;
@@ -34,6 +35,8 @@ enum Command {
     Search(search::Args),
     /// Evaluate the method (SPEC §7): retrieval measures, robustness, parameter study.
     Eval(eval::Args),
+    /// Draw a mesh with its salient points and regions (PNG, three views).
+    Render(render::Args),
 }
 
 pub fn run(cli: Cli) -> anyhow::Result<()> {
@@ -48,6 +51,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Compare(args) => compare::run(args),
         Command::Search(args) => search::run(args),
         Command::Eval(args) => eval::run(args),
+        Command::Render(args) => render::run(args),
     }
 }
 
