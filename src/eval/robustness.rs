@@ -29,7 +29,7 @@ use crate::Result;
 /// and 99.4 % (Table 2).
 pub const FACE_FRACTIONS: [f64; 5] = [0.8, 0.6, 0.4, 0.2, 0.006];
 
-/// Standard deviations of the Gaussian noise, per coordinate, as fractions of the
+/// Root-mean-square length of the Gaussian noise displacement, as fractions of the
 /// bounding-box diagonal.
 pub const NOISE_LEVELS: [f64; 2] = [0.005, 0.01];
 
@@ -124,7 +124,7 @@ pub fn run(name: &str, raw: &RawMesh, params: &Params, seed: u64) -> Result<Robu
     for level in NOISE_LEVELS {
         let mesh = noisy(&base, level, &mut rng);
         trials.push(trial(
-            format!("noise σ = {} % of diagonal", level * 100.0),
+            format!("noise {} % of diagonal", level * 100.0),
             &mesh,
             &same,
         )?);
@@ -149,11 +149,13 @@ pub fn run(name: &str, raw: &RawMesh, params: &Params, seed: u64) -> Result<Robu
     })
 }
 
-/// Every vertex displaced by a Gaussian of standard deviation `level` × the bounding-box
-/// diagonal in each coordinate. Noise is added after welding, so seams stay closed.
+/// Every vertex displaced by an isotropic Gaussian whose root-mean-square length is `level` ×
+/// the bounding-box diagonal (each coordinate's deviation is that over √3). Noise is added
+/// after welding, so seams stay closed.
 fn noisy(base: &PreparedMesh, level: f64, rng: &mut ChaCha8Rng) -> RawMesh {
     let (lo, hi) = bounds(&base.input_positions);
-    let normal = Normal::new(0.0, level * lo.distance(hi)).expect("a finite deviation");
+    let deviation = level * lo.distance(hi) / 3f64.sqrt();
+    let normal = Normal::new(0.0, deviation).expect("a finite deviation");
     RawMesh {
         positions: base
             .input_positions
