@@ -12,7 +12,9 @@
 //! - [`emd`]: exact Earth Mover's Distance by the transportation simplex (§5);
 //! - [`similarity`]: ground distance, penalised EMD, D2 baseline distance, lower bound (§5–6);
 //! - [`rank`]: top-k ranking of an in-memory collection with bound-based pruning;
-//! - [`collection`]: mesh folders and a disk cache of their signatures.
+//! - [`collection`]: mesh folders and a disk cache of their signatures;
+//! - [`eval`]: the evaluation protocol — retrieval measures, robustness, parameter study (§7);
+//! - [`render`]: pictures of a mesh with its salient points and regions (paper Fig. 10).
 
 pub mod collection;
 pub mod descriptor;

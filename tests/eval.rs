@@ -8,6 +8,7 @@ use std::process::Command;
 
 use glam::DVec3;
 use salient::eval::robustness::{self, FACE_FRACTIONS, NOISE_LEVELS};
+use salient::eval::study;
 use salient::eval::LabelledCollection;
 use salient::extract::extract;
 use salient::mesh::RawMesh;
@@ -108,6 +109,58 @@ fn retrieval_report_end_to_end() {
     let csv = std::fs::read_to_string(out.join("distances-ecc.csv")).unwrap();
     assert_eq!(csv.lines().count(), 10);
     assert!(csv.starts_with("id,cone/c-0.obj,"));
+}
+
+#[test]
+fn study_grid_halves_and_report() {
+    let base = Params::default();
+    let grid = study::grid(&base);
+    assert_eq!(grid[0].params, base);
+    // Every other setting changes exactly one thing.
+    assert!(grid[1..].iter().all(|s| s.params != base));
+    assert!(grid
+        .iter()
+        .any(|s| s.parameter == "W" && s.params.similarity.ecc_weight == 1.0));
+
+    let dir = tempfile::tempdir().unwrap();
+    let (collection, out) = (dir.path().join("shapes"), dir.path().join("study"));
+    for (class, name, mesh) in models().into_iter().filter(|(c, _, _)| *c != "star3") {
+        std::fs::create_dir_all(collection.join(class)).unwrap();
+        let small = if class == "cone" {
+            mesh
+        } else {
+            shapes::star(3, &shapes::five_tips())
+        };
+        shapes::write_obj(&collection.join(class).join(format!("{name}.obj")), &small);
+    }
+    let labelled = LabelledCollection::open(&collection).unwrap();
+    let (tune, held_out) = study::halves(&labelled);
+    // Three per class: the first and third tune, the second is held out.
+    assert_eq!((tune, held_out), (vec![0, 2, 3, 5], vec![1, 4]));
+
+    let run = Command::new(env!("CARGO_BIN_EXE_salient"))
+        .args(["eval", "study"])
+        .arg(&collection)
+        .arg("--out")
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    let json: Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("study.json")).unwrap()).unwrap();
+    assert_eq!(json["results"].as_array().unwrap().len(), grid.len());
+    assert_eq!(
+        (json["tune_models"].clone(), json["held_out_models"].clone()),
+        (4.into(), 2.into())
+    );
+    let choices = json["choices"].as_array().unwrap();
+    assert!(choices.iter().any(|c| c["parameter"] == "flat_max"));
+    let markdown = std::fs::read_to_string(out.join("study.md")).unwrap();
+    assert!(markdown.contains("| baseline | defaults |"));
 }
 
 #[test]

@@ -1,7 +1,7 @@
 //! The parameter study behind the defaults (SPEC §5: "tune `W` on the labelled set and record
-//! the tuned value with its evidence"; issue #4): `W`, the penalty, `K`, `flat_max` and `D_g`
-//! varied one at a time around the defaults, scored by leave-one-out retrieval with the
-//! ECC method.
+//! the tuned value with its evidence"; issue #4): `W`, the penalty, `K`, `flat_max`, `D_g` and
+//! SPEC's three resolved rules varied one at a time around the defaults, scored by
+//! leave-one-out retrieval with the ECC method.
 //!
 //! Against overfitting, each class's models are split in two halves (alternately, in id
 //! order): a value is chosen on the tuning half and judged on the held-out half, each half
@@ -22,7 +22,7 @@ use super::retrieval::{evaluate, DistanceMatrix};
 use super::{LabelledCollection, Progress};
 use crate::collection::{read, SignatureCache};
 use crate::extract::{extract_path, Extraction};
-use crate::params::{Limits, Params};
+use crate::params::{CandidateRule, HeightRule, Limits, Params, RegionRule};
 use crate::rank::Method;
 use crate::signature::{describe, Signature};
 use crate::Result;
@@ -39,8 +39,8 @@ pub struct Setting {
 }
 
 /// The baseline, then each parameter's alternatives: `W` ∈ {0, 0.25, 0.75, 1}, penalty off,
-/// `K` ∈ {3, 8}, `flat_max` ∈ {0.25, 1}, `D_g` ∈ {0.2, 0.4} (values equal to `base`'s are
-/// skipped).
+/// `K` ∈ {3, 8}, `flat_max` ∈ {0.25, 1}, `D_g` ∈ {0.2, 0.4}, and the paper's height,
+/// candidate and region rules (values equal to `base`'s are skipped).
 pub fn grid(base: &Params) -> Vec<Setting> {
     let mut settings = vec![Setting {
         parameter: BASELINE,
@@ -71,6 +71,17 @@ pub fn grid(base: &Params) -> Vec<Setting> {
     for size in [0.2, 0.4] {
         vary("D_g", size.to_string(), &|p| p.ecc.local_size = size);
     }
+    // SPEC's resolutions against the paper's literal reading, one at a time (see
+    // `Params::paper`).
+    vary("height", "paper".into(), &|p| {
+        p.ecc.height = HeightRule::Paper
+    });
+    vary("candidates", "norm".into(), &|p| {
+        p.salient.candidates = CandidateRule::Norm
+    });
+    vary("region_rule", "area".into(), &|p| {
+        p.salient.region_rule = RegionRule::Area
+    });
     settings
 }
 
