@@ -146,7 +146,7 @@ fn draw<DB: DrawingBackend>(
         .y_labels(11)
         .label_style(("sans-serif", 14))
         .axis_desc_style(("sans-serif", 16))
-        .light_line_style(WHITE)
+        .max_light_lines(0)
         .draw()
         .map_err(error)?;
     for (i, (name, pr)) in curves.iter().enumerate() {
