@@ -175,13 +175,17 @@ pub struct Evaluation {
     pub queries: usize,
     /// Queries left out because their class has no other model.
     pub skipped_queries: usize,
+    /// Each scored query's scores, in member order: two methods evaluated on the same members
+    /// can be compared query by query.
+    #[serde(skip)]
+    pub per_query: Vec<Scores>,
 }
 
 /// Leave-one-out over `members` (indices into `matrix`, whose models have classes
 /// `classes`): each member queries the other members.
 pub fn evaluate(matrix: &DistanceMatrix, classes: &[&str], members: &[usize]) -> Evaluation {
-    let mut per_query: BTreeMap<&str, Vec<Scores>> = BTreeMap::new();
-    let mut skipped = 0;
+    let mut per_query = Vec::new();
+    let mut by_class: BTreeMap<&str, Vec<Scores>> = BTreeMap::new();
     for &q in members {
         let class = classes[q];
         let relevance: Vec<bool> = matrix
@@ -190,20 +194,20 @@ pub fn evaluate(matrix: &DistanceMatrix, classes: &[&str], members: &[usize]) ->
             .map(|j| classes[j] == class)
             .collect();
         let relevant = relevance.iter().filter(|&&r| r).count();
-        match Scores::of_query(&relevance, relevant) {
-            Some(scores) => per_query.entry(class).or_default().push(scores),
-            None => skipped += 1,
+        if let Some(scores) = Scores::of_query(&relevance, relevant) {
+            by_class.entry(class).or_default().push(scores);
+            per_query.push(scores);
         }
     }
-    let per_class: BTreeMap<String, Scores> = per_query
-        .iter()
-        .filter_map(|(class, scores)| Some((class.to_string(), Scores::mean(scores)?)))
-        .collect();
     Evaluation {
-        scores: Scores::mean(per_query.values().flatten()).unwrap_or_default(),
-        per_class,
-        queries: members.len() - skipped,
-        skipped_queries: skipped,
+        scores: Scores::mean(&per_query).unwrap_or_default(),
+        per_class: by_class
+            .iter()
+            .filter_map(|(class, scores)| Some((class.to_string(), Scores::mean(scores)?)))
+            .collect(),
+        queries: per_query.len(),
+        skipped_queries: members.len() - per_query.len(),
+        per_query,
     }
 }
 

@@ -27,65 +27,95 @@ use crate::rank::Method;
 use crate::signature::{describe, Signature};
 use crate::Result;
 
-/// Held-out mAP a tuned value must gain over the default before the study recommends it.
+/// Held-out mAP a tuned value must gain over the default before the study recommends it,
+/// at the least; the gain must also be twice its standard error.
 pub const MIN_GAIN: f64 = 0.005;
 
-/// One point of the grid: `base` with one parameter changed (or none, for the baseline).
-#[derive(Debug, Clone, PartialEq)]
-pub struct Setting {
-    pub parameter: &'static str,
-    pub value: String,
-    pub params: Params,
+/// One parameter changed from the base.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Change {
+    /// `W` of the ground distance (SPEC §5).
+    EccWeight(f64),
+    Penalty(bool),
+    /// `K` of k-means (SPEC §3.1).
+    Clusters(usize),
+    FlatMax(f64),
+    /// `D_g` (SPEC §2).
+    LocalSize(f64),
+    Height(HeightRule),
+    Candidates(CandidateRule),
+    Regions(RegionRule),
 }
 
-/// The baseline, then each parameter's alternatives: `W` ∈ {0, 0.25, 0.75, 1}, penalty off,
-/// `K` ∈ {3, 8}, `flat_max` ∈ {0.25, 1}, `D_g` ∈ {0.2, 0.4}, and the paper's height,
-/// candidate and region rules (values equal to `base`'s are skipped).
-pub fn grid(base: &Params) -> Vec<Setting> {
-    let mut settings = vec![Setting {
-        parameter: BASELINE,
-        value: "defaults".into(),
-        params: base.clone(),
-    }];
-    let mut vary = |parameter: &'static str, value: String, change: &dyn Fn(&mut Params)| {
-        let mut params = base.clone();
-        change(&mut params);
-        if params != *base {
-            settings.push(Setting {
-                parameter,
-                value,
-                params,
-            });
+impl Change {
+    pub fn parameter(self) -> &'static str {
+        match self {
+            Change::EccWeight(_) => "W",
+            Change::Penalty(_) => "penalty",
+            Change::Clusters(_) => "K",
+            Change::FlatMax(_) => "flat_max",
+            Change::LocalSize(_) => "D_g",
+            Change::Height(_) => "height",
+            Change::Candidates(_) => "candidates",
+            Change::Regions(_) => "region_rule",
         }
-    };
-    for w in [0.0, 0.25, 0.75, 1.0] {
-        vary("W", w.to_string(), &|p| p.similarity.ecc_weight = w);
     }
-    vary("penalty", "off".into(), &|p| p.similarity.penalty = false);
-    for k in [3, 8] {
-        vary("K", k.to_string(), &|p| p.salient.clusters = k);
+
+    pub fn value(self) -> String {
+        match self {
+            Change::EccWeight(x) | Change::FlatMax(x) | Change::LocalSize(x) => x.to_string(),
+            Change::Penalty(on) => if on { "on" } else { "off" }.into(),
+            Change::Clusters(k) => k.to_string(),
+            Change::Height(rule) => format!("{rule:?}").to_lowercase(),
+            Change::Candidates(rule) => format!("{rule:?}").to_lowercase(),
+            Change::Regions(rule) => format!("{rule:?}").to_lowercase(),
+        }
     }
-    for flat in [0.25, 1.0] {
-        vary("flat_max", flat.to_string(), &|p| p.ecc.flat_max = flat);
+
+    pub fn apply(self, params: &mut Params) {
+        match self {
+            Change::EccWeight(w) => params.similarity.ecc_weight = w,
+            Change::Penalty(on) => params.similarity.penalty = on,
+            Change::Clusters(k) => params.salient.clusters = k,
+            Change::FlatMax(x) => params.ecc.flat_max = x,
+            Change::LocalSize(x) => params.ecc.local_size = x,
+            Change::Height(rule) => params.ecc.height = rule,
+            Change::Candidates(rule) => params.salient.candidates = rule,
+            Change::Regions(rule) => params.salient.region_rule = rule,
+        }
     }
-    for size in [0.2, 0.4] {
-        vary("D_g", size.to_string(), &|p| p.ecc.local_size = size);
-    }
-    // SPEC's resolutions against the paper's literal reading, one at a time (see
-    // `Params::paper`).
-    vary("height", "paper".into(), &|p| {
-        p.ecc.height = HeightRule::Paper
-    });
-    vary("candidates", "norm".into(), &|p| {
-        p.salient.candidates = CandidateRule::Norm
-    });
-    vary("region_rule", "area".into(), &|p| {
-        p.salient.region_rule = RegionRule::Area
-    });
-    settings
 }
 
-const BASELINE: &str = "baseline";
+/// The alternatives tried: `W` ∈ {0, 0.25, 0.75, 1}, penalty off, `K` ∈ {3, 8}, `flat_max` ∈
+/// {0.25, 1}, `D_g` ∈ {0.2, 0.4}, and the paper's height, candidate and region rules
+/// (`Params::paper`), skipping any that `base` already has.
+pub fn grid(base: &Params) -> Vec<Change> {
+    let changes = [0.0, 0.25, 0.75, 1.0]
+        .map(Change::EccWeight)
+        .into_iter()
+        .chain([
+            Change::Penalty(false),
+            Change::Clusters(3),
+            Change::Clusters(8),
+        ])
+        .chain([0.25, 1.0].map(Change::FlatMax))
+        .chain([0.2, 0.4].map(Change::LocalSize))
+        .chain([
+            Change::Height(HeightRule::Paper),
+            Change::Candidates(CandidateRule::Norm),
+            Change::Regions(RegionRule::Area),
+        ]);
+    changes.filter(|c| with(base, &[*c]) != *base).collect()
+}
+
+/// `base` with `changes` applied.
+fn with(base: &Params, changes: &[Change]) -> Params {
+    let mut params = base.clone();
+    for c in changes {
+        c.apply(&mut params);
+    }
+    params
+}
 
 /// Each class's models alternately into a tuning and a held-out half, in id order.
 pub fn halves(collection: &LabelledCollection) -> (Vec<usize>, Vec<usize>) {
@@ -104,14 +134,21 @@ pub fn halves(collection: &LabelledCollection) -> (Vec<usize>, Vec<usize>) {
     (tune, test)
 }
 
-/// A setting's scores.
+/// A setting's scores: the baseline (no change), one change, or the recommended changes
+/// combined.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct SettingResult {
-    pub parameter: &'static str,
+    pub parameter: String,
     pub value: String,
+    #[serde(skip)]
+    pub changes: Vec<Change>,
     pub tune: Scores,
     pub held_out: Scores,
     pub all: Scores,
+    /// Held-out mAP gain over the baseline, and its standard error over held-out queries
+    /// (paired: the same queries under both settings).
+    pub held_out_gain: f64,
+    pub held_out_gain_se: f64,
     pub matrix_seconds: f64,
 }
 
@@ -123,8 +160,10 @@ pub struct Choice {
     /// mAP gains over the baseline (negative: worse).
     pub tune_gain: f64,
     pub held_out_gain: f64,
+    pub held_out_gain_se: f64,
     pub all_gain: f64,
-    /// Whether the held-out half confirms it by at least [`MIN_GAIN`].
+    /// Whether the held-out half confirms it: a gain of at least [`MIN_GAIN`] and two
+    /// standard errors.
     pub recommended: bool,
 }
 
@@ -136,9 +175,11 @@ pub struct StudyReport {
     pub tune_models: usize,
     pub held_out_models: usize,
     pub base: Params,
+    /// The baseline, each change, and last (when anything was recommended) the recommended
+    /// changes together.
     pub results: Vec<SettingResult>,
     pub choices: Vec<Choice>,
-    /// Wall-clock seconds of the signature pass (extraction of what was not cached).
+    /// Wall-clock seconds of the signature passes (extraction of what was not cached).
     pub signature_seconds: f64,
 }
 
@@ -150,63 +191,191 @@ pub fn run(
     limits: &Limits,
     progress: &dyn Progress,
 ) -> Result<StudyReport> {
-    let settings = grid(base);
-    // Signatures do not depend on the similarity parameters.
-    let signature_params = |s: &Setting| Params {
-        similarity: base.similarity.clone(),
-        ..s.params.clone()
-    };
-    let mut sets: Vec<Params> = Vec::new();
-    for s in &settings {
-        let p = signature_params(s);
-        if !sets.contains(&p) {
-            sets.push(p);
-        }
-    }
-    let clock = Instant::now();
-    let signatures = signatures(collection, &sets, cache_dir, limits, progress)?;
-    let signature_seconds = clock.elapsed().as_secs_f64();
-
-    let ids: Vec<String> = collection.models.iter().map(|m| m.id.clone()).collect();
-    let classes = collection.classes();
-    let (tune, held_out) = halves(collection);
-    let all: Vec<usize> = (0..ids.len()).collect();
+    let mut settings = vec![Vec::new()];
+    settings.extend(grid(base).into_iter().map(|c| vec![c]));
+    let mut scorer = Scorer::new(collection, base, cache_dir, limits, progress);
+    let sets: Vec<Params> = settings
+        .iter()
+        .map(|c| scorer.signature_params(c))
+        .collect();
+    scorer.prepare(&sets)?;
     let mut results = Vec::new();
-    for s in &settings {
-        let set = sets
-            .iter()
-            .position(|p| *p == signature_params(s))
-            .expect("every setting has its signature set");
-        let clock = Instant::now();
-        progress.start(&format!("{} {}", s.parameter, s.value), ids.len());
-        let matrix = DistanceMatrix::compute(
-            ids.clone(),
-            &signatures[set],
-            Method::Ecc,
-            &s.params.similarity,
-            || progress.advance(""),
-        );
-        progress.finish();
-        results.push(SettingResult {
-            parameter: s.parameter,
-            value: s.value.clone(),
-            tune: evaluate(&matrix, &classes, &tune).scores,
-            held_out: evaluate(&matrix, &classes, &held_out).scores,
-            all: evaluate(&matrix, &classes, &all).scores,
-            matrix_seconds: clock.elapsed().as_secs_f64(),
-        });
+    for changes in settings {
+        results.push(scorer.score(changes)?);
     }
     let choices = choose(&results);
+    let recommended: Vec<Change> = choices
+        .iter()
+        .filter(|c| c.recommended)
+        .flat_map(|c| {
+            results
+                .iter()
+                .find(|r| r.parameter == c.parameter && r.value == c.best_on_tune)
+                .map(|r| r.changes[0])
+        })
+        .collect();
+    if recommended.len() > 1 {
+        results.push(scorer.score(recommended)?);
+    }
+    let (tune, held_out) = halves(collection);
     Ok(StudyReport {
         collection: collection.root.display().to_string(),
-        models: ids.len(),
+        models: collection.models.len(),
         tune_models: tune.len(),
         held_out_models: held_out.len(),
         base: base.clone(),
         results,
         choices,
-        signature_seconds,
+        signature_seconds: scorer.signature_seconds,
     })
+}
+
+/// Scores settings on a collection's halves, extracting signatures as they are needed.
+struct Scorer<'a> {
+    collection: &'a LabelledCollection,
+    base: &'a Params,
+    cache_dir: &'a Path,
+    limits: &'a Limits,
+    progress: &'a dyn Progress,
+    halves: (Vec<usize>, Vec<usize>),
+    /// Signatures per parameter set (similarity parameters left at the base's: they do not
+    /// change signatures).
+    signatures: Vec<(Params, Vec<Signature>)>,
+    /// The baseline's held-out per-query scores, for paired gains.
+    baseline: Vec<Scores>,
+    signature_seconds: f64,
+}
+
+impl<'a> Scorer<'a> {
+    fn new(
+        collection: &'a LabelledCollection,
+        base: &'a Params,
+        cache_dir: &'a Path,
+        limits: &'a Limits,
+        progress: &'a dyn Progress,
+    ) -> Self {
+        Self {
+            collection,
+            base,
+            cache_dir,
+            limits,
+            progress,
+            halves: halves(collection),
+            signatures: Vec::new(),
+            baseline: Vec::new(),
+            signature_seconds: 0.0,
+        }
+    }
+
+    /// The parameters of the signatures `changes` need: similarity parameters do not change
+    /// signatures, so they stay at the base's.
+    fn signature_params(&self, changes: &[Change]) -> Params {
+        Params {
+            similarity: self.base.similarity.clone(),
+            ..with(self.base, changes)
+        }
+    }
+
+    /// Extracts (or reads from the cache) the signature sets not yet at hand, all in one pass
+    /// so that sets sharing their ECC share one ECC computation per model.
+    fn prepare(&mut self, sets: &[Params]) -> Result<()> {
+        let mut missing: Vec<Params> = Vec::new();
+        for p in sets {
+            if !missing.contains(p) && self.signatures.iter().all(|(q, _)| q != p) {
+                missing.push(p.clone());
+            }
+        }
+        if missing.is_empty() {
+            return Ok(());
+        }
+        let clock = Instant::now();
+        let extracted = signatures(
+            self.collection,
+            &missing,
+            self.cache_dir,
+            self.limits,
+            self.progress,
+        )?;
+        self.signature_seconds += clock.elapsed().as_secs_f64();
+        self.signatures.extend(missing.into_iter().zip(extracted));
+        Ok(())
+    }
+
+    /// Scores `base` with `changes`; the first call must be the baseline (no changes).
+    fn score(&mut self, changes: Vec<Change>) -> Result<SettingResult> {
+        let params = with(self.base, &changes);
+        let signature_params = self.signature_params(&changes);
+        self.prepare(std::slice::from_ref(&signature_params))?;
+        let (_, signatures) = self
+            .signatures
+            .iter()
+            .find(|(p, _)| *p == signature_params)
+            .expect("prepared above");
+
+        let (parameter, value) = match changes.as_slice() {
+            [] => (BASELINE.to_string(), "defaults".to_string()),
+            [one] => (one.parameter().to_string(), one.value()),
+            many => (
+                COMBINED.to_string(),
+                many.iter()
+                    .map(|c| format!("{} {}", c.parameter(), c.value()))
+                    .collect::<Vec<_>>()
+                    .join(", "),
+            ),
+        };
+        let clock = Instant::now();
+        let ids: Vec<String> = self
+            .collection
+            .models
+            .iter()
+            .map(|m| m.id.clone())
+            .collect();
+        self.progress
+            .start(&format!("{parameter} {value}"), ids.len());
+        let matrix =
+            DistanceMatrix::compute(ids, signatures, Method::Ecc, &params.similarity, || {
+                self.progress.advance("")
+            });
+        self.progress.finish();
+        let classes = self.collection.classes();
+        let (tune, held_out) = &self.halves;
+        let all: Vec<usize> = (0..matrix.len()).collect();
+        let held = evaluate(&matrix, &classes, held_out);
+        if changes.is_empty() {
+            self.baseline = held.per_query.clone();
+        }
+        let (gain, se) = paired_gain(&self.baseline, &held.per_query);
+        Ok(SettingResult {
+            parameter,
+            value,
+            changes,
+            tune: evaluate(&matrix, &classes, tune).scores,
+            held_out: held.scores,
+            all: evaluate(&matrix, &classes, &all).scores,
+            held_out_gain: gain,
+            held_out_gain_se: se,
+            matrix_seconds: clock.elapsed().as_secs_f64(),
+        })
+    }
+}
+
+const BASELINE: &str = "baseline";
+const COMBINED: &str = "combined";
+
+/// Mean and standard error of the per-query average-precision differences `after − before`.
+fn paired_gain(before: &[Scores], after: &[Scores]) -> (f64, f64) {
+    let differences: Vec<f64> = before
+        .iter()
+        .zip(after)
+        .map(|(b, a)| a.map - b.map)
+        .collect();
+    let n = differences.len() as f64;
+    if n < 2.0 {
+        return (differences.first().copied().unwrap_or(0.0), 0.0);
+    }
+    let mean = differences.iter().sum::<f64>() / n;
+    let variance = differences.iter().map(|d| (d - mean).powi(2)).sum::<f64>() / (n - 1.0);
+    (mean, (variance / n).sqrt())
 }
 
 /// Per parameter, the value of best tuning-half mAP (the baseline's when none beats it).
@@ -214,8 +383,9 @@ fn choose(results: &[SettingResult]) -> Vec<Choice> {
     let baseline = &results[0];
     let mut parameters: Vec<&'static str> = Vec::new();
     for r in &results[1..] {
-        if !parameters.contains(&r.parameter) {
-            parameters.push(r.parameter);
+        let parameter = r.changes[0].parameter();
+        if !parameters.contains(&parameter) {
+            parameters.push(parameter);
         }
     }
     parameters
@@ -223,22 +393,24 @@ fn choose(results: &[SettingResult]) -> Vec<Choice> {
         .map(|parameter| {
             let best = results
                 .iter()
-                .filter(|r| r.parameter == parameter)
+                .filter(|r| r.changes.first().map(|c| c.parameter()) == Some(parameter))
                 .chain([baseline])
                 .max_by(|a, b| a.tune.map.total_cmp(&b.tune.map))
                 .expect("the baseline is a candidate");
-            let held_out_gain = best.held_out.map - baseline.held_out.map;
+            let changed = best.parameter != BASELINE;
             Choice {
                 parameter,
-                best_on_tune: if best.parameter == BASELINE {
-                    "default".into()
-                } else {
+                best_on_tune: if changed {
                     best.value.clone()
+                } else {
+                    "default".into()
                 },
                 tune_gain: best.tune.map - baseline.tune.map,
-                held_out_gain,
+                held_out_gain: best.held_out_gain,
+                held_out_gain_se: best.held_out_gain_se,
                 all_gain: best.all.map - baseline.all.map,
-                recommended: best.parameter != BASELINE && held_out_gain >= MIN_GAIN,
+                recommended: changed
+                    && best.held_out_gain >= MIN_GAIN.max(2.0 * best.held_out_gain_se),
             }
         })
         .collect()
@@ -293,6 +465,7 @@ impl StudyReport {
             "value",
             "tune mAP",
             "held-out mAP",
+            "held-out ΔmAP ± SE",
             "held-out NN",
             "held-out FT",
             "all NN",
@@ -301,10 +474,11 @@ impl StudyReport {
         ]);
         for r in &self.results {
             results.row([
-                r.parameter.to_string(),
+                r.parameter.clone(),
                 r.value.clone(),
                 score(r.tune.map),
                 score(r.held_out.map),
+                format!("{:+.3} ± {:.3}", r.held_out_gain, r.held_out_gain_se),
                 score(r.held_out.nearest_neighbour),
                 score(r.held_out.first_tier),
                 score(r.all.nearest_neighbour),
@@ -316,7 +490,7 @@ impl StudyReport {
             "parameter",
             "best on tuning half",
             "tune ΔmAP",
-            "held-out ΔmAP",
+            "held-out ΔmAP ± SE",
             "all ΔmAP",
             "recommended",
         ]);
@@ -325,7 +499,7 @@ impl StudyReport {
                 c.parameter.to_string(),
                 c.best_on_tune.clone(),
                 format!("{:+.3}", c.tune_gain),
-                format!("{:+.3}", c.held_out_gain),
+                format!("{:+.3} ± {:.3}", c.held_out_gain, c.held_out_gain_se),
                 format!("{:+.3}", c.all_gain),
                 if c.recommended { "yes" } else { "no" }.to_string(),
             ]);
@@ -336,7 +510,9 @@ impl StudyReport {
              varied at a time around the defaults (`W` = {}, penalty {}, `K` = {}, \
              `flat_max` = {}, `D_g` = {}); ECC method, leave-one-out.\n\n{}\n## Choice per \
              parameter\n\nThe value of best tuning-half mAP, and what it gains over the \
-             defaults. Recommended only when the held-out half gains at least {MIN_GAIN} mAP.\n\n{}",
+             defaults. Recommended only when the held-out half gains at least {MIN_GAIN} mAP and two \
+             standard errors of the paired per-query differences. The last row of the table \
+             above, when present, has all recommended changes together.\n\n{}",
             self.collection,
             self.models,
             self.tune_models,
