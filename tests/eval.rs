@@ -92,6 +92,10 @@ fn retrieval_report_end_to_end() {
     // (D2, blind to tips, does not), and ranks better than D2 overall.
     let ecc = &json["methods"]["ecc"];
     assert_eq!(ecc["per_class"]["cone"]["FT"], 1.0);
+    // Feature counts per class for the methods that rank by features: a cone has its apex,
+    // a five-tip star its five tips.
+    assert_eq!(ecc["features_per_class"]["star5"]["mean"], 5.0);
+    assert!(json["methods"]["d2"].get("features_per_class").is_none());
     assert!(ecc["mAP"].as_f64() > json["methods"]["d2"]["mAP"].as_f64());
     // Signatures were cached beside the collection, once per parameter set.
     let cached = std::fs::read_dir(collection.join(".salient-cache"))

@@ -259,6 +259,53 @@ pub fn signatures(
     Ok((signatures, summary))
 }
 
+/// How many salient features a class's models have. The penalty of Eq. 13 multiplies the EMD
+/// by the ratio of two models' counts, so a class whose counts spread widely looks unlike
+/// itself.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct FeatureCounts {
+    pub mean: f64,
+    pub sd: f64,
+    pub min: usize,
+    pub max: usize,
+}
+
+impl FeatureCounts {
+    fn of(counts: &[usize]) -> Self {
+        let n = counts.len().max(1) as f64;
+        let mean = counts.iter().sum::<usize>() as f64 / n;
+        let variance = counts
+            .iter()
+            .map(|&c| (c as f64 - mean).powi(2))
+            .sum::<f64>()
+            / n;
+        Self {
+            mean,
+            sd: variance.sqrt(),
+            min: counts.iter().copied().min().unwrap_or(0),
+            max: counts.iter().copied().max().unwrap_or(0),
+        }
+    }
+}
+
+/// Feature counts per class, for methods that rank by salient features.
+fn feature_counts(
+    collection: &LabelledCollection,
+    signatures: &[Signature],
+) -> BTreeMap<String, FeatureCounts> {
+    let mut counts: BTreeMap<String, Vec<usize>> = BTreeMap::new();
+    for (model, signature) in collection.models.iter().zip(signatures) {
+        counts
+            .entry(model.class.clone())
+            .or_default()
+            .push(signature.features.len());
+    }
+    counts
+        .into_iter()
+        .map(|(class, c)| (class, FeatureCounts::of(&c)))
+        .collect()
+}
+
 /// One method's results on a collection.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct MethodResult {
@@ -266,6 +313,9 @@ pub struct MethodResult {
     pub method: EvalMethod,
     #[serde(flatten)]
     pub evaluation: Evaluation,
+    /// Salient features per model, per class (methods that rank by them).
+    #[serde(skip_serializing_if = "BTreeMap::is_empty")]
+    pub features_per_class: BTreeMap<String, FeatureCounts>,
     pub params: Params,
     pub extraction: ExtractionSummary,
     /// Wall-clock seconds to fill the distance matrix.
@@ -329,9 +379,14 @@ pub fn run(
         );
         progress.finish();
         let matrix_seconds = clock.elapsed().as_secs_f64();
+        let features_per_class = match method.rank() {
+            Method::Ecc => feature_counts(collection, signatures),
+            Method::D2 => BTreeMap::new(),
+        };
         results.push(MethodResult {
             method,
             evaluation: evaluate(&matrix, &classes, &everyone),
+            features_per_class,
             params,
             extraction: summary.clone(),
             matrix_seconds,
@@ -413,6 +468,31 @@ impl RetrievalReport {
                             .map_or("–".into(), |s| score(pick(s)))
                     }),
                 ));
+            }
+            text += &table.markdown();
+        }
+        let featured: Vec<&MethodResult> = self
+            .methods
+            .iter()
+            .filter(|m| !m.features_per_class.is_empty())
+            .collect();
+        if !featured.is_empty() {
+            text += "\n## Salient features per model\n\nMean ± standard deviation (min–max) \
+                     per class. The penalty of Eq. 13 multiplies the EMD by the ratio of two \
+                     models' counts, so a class whose counts spread is hard to retrieve.\n\n";
+            let mut table = Table::new(
+                ["class"]
+                    .into_iter()
+                    .chain(featured.iter().map(|m| m.method.name())),
+            );
+            for class in self.class_sizes.keys() {
+                table.row(
+                    std::iter::once(class.clone()).chain(featured.iter().map(|m| {
+                        m.features_per_class.get(class).map_or("–".into(), |c| {
+                            format!("{:.1} ± {:.1} ({}–{})", c.mean, c.sd, c.min, c.max)
+                        })
+                    })),
+                );
             }
             text += &table.markdown();
         }
