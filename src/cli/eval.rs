@@ -8,8 +8,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 
 use salient::collection::{SignatureCache, CACHE_DIR};
 use salient::eval::retrieval::{self, EvalMethod};
-use salient::eval::{robustness, study};
-use salient::eval::{LabelledCollection, Progress};
+use salient::eval::{robustness, study, LabelledCollection, Progress};
 use salient::mesh::load_path;
 use salient::Limits;
 

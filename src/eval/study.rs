@@ -217,7 +217,7 @@ pub fn run(
     if recommended.len() > 1 {
         results.push(scorer.score(recommended)?);
     }
-    let (tune, held_out) = halves(collection);
+    let (tune, held_out) = &scorer.halves;
     Ok(StudyReport {
         collection: collection.root.display().to_string(),
         models: collection.models.len(),
