@@ -80,21 +80,28 @@ impl SignatureCache {
         params: &Params,
         limits: &Limits,
     ) -> Result<(Signature, Source)> {
-        let bytes = fs::read(path).map_err(|source| Error::Io {
-            path: path.to_path_buf(),
-            source,
-        })?;
-        let mut hasher = Sha256::new();
-        hasher.update(&bytes);
-        hasher.update(&self.params_key);
-        let entry = self.dir.join(format!("{}.sig", hex(&hasher.finalize())));
-        if let Some(signature) = fs::read(&entry)
-            .ok()
-            .and_then(|b| Signature::from_bytes(&b).ok())
-        {
+        let bytes = read(path)?;
+        if let Some(signature) = self.get(&bytes) {
             return Ok((signature, Source::Cached));
         }
-        let bytes = describe(&extract_path(path, params, limits)?, params).to_bytes();
+        let signature = describe(&extract_path(path, params, limits)?, params);
+        Ok((self.put(&bytes, &signature)?, Source::Extracted))
+    }
+
+    /// The stored signature of a mesh file with content `bytes`, if there is a readable one.
+    pub fn get(&self, bytes: &[u8]) -> Option<Signature> {
+        fs::read(self.entry(bytes))
+            .ok()
+            .and_then(|b| Signature::from_bytes(&b).ok())
+    }
+
+    /// Stores `signature` as that of the mesh file with content `bytes` (made with this
+    /// cache's parameters: callers that extract once for several parameter sets use it), and
+    /// returns the stored form, so that a result never depends on whether it came from the
+    /// cache.
+    pub fn put(&self, bytes: &[u8], signature: &Signature) -> Result<Signature> {
+        let entry = self.entry(bytes);
+        let bytes = signature.to_bytes();
         // Written to a temporary name and renamed, so a reader never sees half a file.
         let temporary = entry.with_extension(format!("tmp{}", std::process::id()));
         let stored = fs::create_dir_all(&self.dir)
@@ -103,7 +110,21 @@ impl SignatureCache {
         if stored.is_err() {
             let _ = fs::remove_file(&temporary);
         }
-        // The stored form, so that a result never depends on whether it came from the cache.
-        Ok((Signature::from_bytes(&bytes)?, Source::Extracted))
+        Signature::from_bytes(&bytes)
     }
+
+    fn entry(&self, bytes: &[u8]) -> PathBuf {
+        let mut hasher = Sha256::new();
+        hasher.update(bytes);
+        hasher.update(&self.params_key);
+        self.dir.join(format!("{}.sig", hex(&hasher.finalize())))
+    }
+}
+
+/// The bytes of a file, with its path in the error.
+pub fn read(path: &Path) -> Result<Vec<u8>> {
+    fs::read(path).map_err(|source| Error::Io {
+        path: path.to_path_buf(),
+        source,
+    })
 }

@@ -82,6 +82,15 @@ pub enum Error {
         count: usize,
         limit: usize,
     },
+
+    /// A labelled collection's labels cannot be used (SPEC §7): fix `labels.tsv` or lay the
+    /// collection out as `CLASS/MODEL.ext`.
+    #[error("bad labels in {path}: {message}")]
+    Labels { path: PathBuf, message: String },
+
+    /// A report file (JSON, Markdown, CSV, a plot or a picture) could not be written.
+    #[error("cannot write {path}: {message}")]
+    Report { path: PathBuf, message: String },
 }
 
 /// Shorthand for results of this crate.

@@ -16,6 +16,8 @@
 //! - [`store`]: persistent models, signatures and original files (sled);
 //! - [`api`]: the HTTP service (SPEC §8);
 //! - [`ingest`]: planning a bulk upload of a mesh folder to the service (`salient ingest`).
+//! - [`eval`]: the evaluation protocol — retrieval measures, robustness, parameter study (§7);
+//! - [`render`]: pictures of a mesh with its salient points and regions (paper Fig. 10).
 
 pub mod api;
 pub mod collection;
@@ -23,12 +25,14 @@ pub mod descriptor;
 pub mod ecc;
 pub mod emd;
 pub mod error;
+pub mod eval;
 pub mod extract;
 pub mod geodesic;
 pub mod ingest;
 pub mod mesh;
 pub mod params;
 pub mod rank;
+pub mod render;
 pub mod salient;
 pub mod signature;
 pub mod similarity;

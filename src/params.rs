@@ -36,6 +36,20 @@ impl Default for Params {
 }
 
 impl Params {
+    /// The paper read literally, where SPEC resolves it otherwise: Definition 3's cone height
+    /// ([`HeightRule::Paper`], SPEC §2.4), the candidate cluster of largest norm
+    /// ([`CandidateRule::Norm`], §3.1), the area filter on regions ([`RegionRule::Area`],
+    /// §3.4) and the tighter flatness limit 0.25 (§2.3). Evaluated beside the defaults
+    /// (SPEC §7) so that the effect of SPEC's resolutions is measured, not asserted.
+    pub fn paper() -> Self {
+        let mut params = Self::default();
+        params.ecc.height = HeightRule::Paper;
+        params.ecc.flat_max = 0.25;
+        params.salient.candidates = CandidateRule::Norm;
+        params.salient.region_rule = RegionRule::Area;
+        params
+    }
+
     /// Checks that every value is in the range the method is defined for, so that a bad
     /// parameter file is a clear error rather than a panic or a meaningless signature.
     pub fn validate(&self) -> Result<()> {

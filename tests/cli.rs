@@ -2,11 +2,9 @@
 
 mod shapes;
 
-use std::path::Path;
 use std::process::{Command, Output};
 
 use glam::{DMat4, DVec3};
-use salient::mesh::RawMesh;
 use serde_json::Value;
 
 fn salient(args: &[&str]) -> Output {
@@ -14,17 +12,6 @@ fn salient(args: &[&str]) -> Output {
         .args(args)
         .output()
         .expect("the binary runs")
-}
-
-fn write_obj(path: &Path, mesh: &RawMesh) {
-    let mut text = String::new();
-    for p in &mesh.positions {
-        text += &format!("v {} {} {}\n", p.x, p.y, p.z);
-    }
-    for t in &mesh.triangles {
-        text += &format!("f {} {} {}\n", t[0] + 1, t[1] + 1, t[2] + 1);
-    }
-    std::fs::write(path, text).unwrap();
 }
 
 #[test]
@@ -38,7 +25,7 @@ fn extract_json_per_vertex_reports_input_coordinates() {
         DVec3::new(10.0, -3.0, 2.0),
     );
     let sphere = shapes::transformed(&shapes::icosphere(3), motion);
-    write_obj(&path, &sphere);
+    shapes::write_obj(&path, &sphere);
 
     let out = salient(&["extract", path.to_str().unwrap(), "--json", "--per-vertex"]);
     assert!(
@@ -102,7 +89,7 @@ fn extract_json_per_vertex_reports_input_coordinates() {
 fn simplification_is_reported() {
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("sphere.obj");
-    write_obj(&path, &shapes::icosphere(4));
+    shapes::write_obj(&path, &shapes::icosphere(4));
     let params = dir.path().join("params.json");
     std::fs::write(&params, r#"{"mesh": {"max_vertices": 1000}}"#).unwrap();
     let out = salient(&[
@@ -162,7 +149,7 @@ fn bad_input_is_one_line_on_stderr_and_a_failure_code() {
 fn out_of_range_parameters_are_refused() {
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("sphere.obj");
-    write_obj(&path, &shapes::icosphere(1));
+    shapes::write_obj(&path, &shapes::icosphere(1));
     for (params, name) in [
         (r#"{"ecc": {"waves": 0}}"#, "ecc.waves"),
         (r#"{"ecc": {"local_size": -1}}"#, "ecc.local_size"),
@@ -195,8 +182,8 @@ fn json_of(out: &Output) -> Value {
 fn extract_json_is_a_signature_and_compare_reads_it() {
     let dir = tempfile::tempdir().unwrap();
     let (star, cone) = (dir.path().join("star.obj"), dir.path().join("cone.obj"));
-    write_obj(&star, &shapes::star(4, &shapes::five_tips()));
-    write_obj(&cone, &shapes::cone(0.5, 40, 48));
+    shapes::write_obj(&star, &shapes::star(4, &shapes::five_tips()));
+    shapes::write_obj(&cone, &shapes::cone(0.5, 40, 48));
 
     let signature = json_of(&salient(&["extract", star.to_str().unwrap(), "--json"]));
     let features = signature["features"].as_array().unwrap();
@@ -258,16 +245,16 @@ fn search_ranks_a_folder_and_caches_signatures() {
     std::fs::create_dir_all(collection.join("stars")).unwrap();
     std::fs::create_dir_all(collection.join("other")).unwrap();
     let star = shapes::star(4, &shapes::five_tips());
-    write_obj(&collection.join("stars/star.obj"), &star);
-    write_obj(
+    shapes::write_obj(&collection.join("stars/star.obj"), &star);
+    shapes::write_obj(
         &collection.join("stars/moved.obj"),
         &shapes::transformed(&star, shapes::random_motion(4)),
     );
-    write_obj(
+    shapes::write_obj(
         &collection.join("other/cone.obj"),
         &shapes::cone(0.5, 40, 48),
     );
-    write_obj(
+    shapes::write_obj(
         &collection.join("other/tube.obj"),
         &shapes::tube(0.2, 60, 24),
     );

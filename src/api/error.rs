@@ -111,9 +111,11 @@ impl From<crate::Error> for AppError {
             | E::NonFinite { .. }
             | E::MissingResource { .. } => AppError::bad_request("bad_mesh", e.to_string()),
             E::InvalidParameter { .. } => AppError::bad_request("invalid_parameter", e.to_string()),
-            E::Io { .. } | E::CorruptSignature { .. } | E::SignatureFormat { .. } => {
-                AppError::Internal(e.to_string())
-            }
+            E::Io { .. }
+            | E::Labels { .. }
+            | E::Report { .. }
+            | E::CorruptSignature { .. }
+            | E::SignatureFormat { .. } => AppError::Internal(e.to_string()),
         }
     }
 }

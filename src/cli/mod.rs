@@ -2,10 +2,12 @@
 //! results into output; the method itself lives in the library.
 
 mod compare;
+mod eval;
 mod extract;
 mod health;
 mod ingest;
 mod reindex;
+mod render;
 mod search;
 mod serve;
 
@@ -45,6 +47,10 @@ enum Command {
     Health(health::Args),
     /// Print the service's OpenAPI description (the committed `openapi.yaml`).
     Openapi,
+    /// Evaluate the method (SPEC §7): retrieval measures, robustness, parameter study.
+    Eval(eval::Args),
+    /// Draw a mesh with its salient points and regions (PNG, three views).
+    Render(render::Args),
 }
 
 pub fn run(cli: Cli) -> anyhow::Result<()> {
@@ -66,6 +72,8 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
             print!("{}", salient::api::openapi_yaml());
             Ok(())
         }
+        Command::Eval(args) => eval::run(args),
+        Command::Render(args) => render::run(args),
     }
 }
 

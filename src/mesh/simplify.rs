@@ -18,23 +18,14 @@ pub fn simplify(
     if positions.len() <= max_vertices {
         return None;
     }
-    let points: Vec<[f32; 3]> = positions.iter().map(|p| p.as_vec3().to_array()).collect();
-    let indices: Vec<u32> = triangles.iter().flatten().copied().collect();
+    let input = Input::new(positions, triangles);
     // meshoptimizer targets an index count; vertices follow triangles roughly 1:2, so aim in
     // proportion and tighten until the vertex bound holds (it converges in one or two rounds).
-    let mut target = (indices.len() as f64 * max_vertices as f64 / positions.len() as f64) as usize;
+    let mut target =
+        (input.indices.len() as f64 * max_vertices as f64 / positions.len() as f64) as usize;
     let mut best = None;
     for _ in 0..8 {
-        let kept = meshopt::simplify_decoder(
-            &indices,
-            &points,
-            target.max(3),
-            f32::MAX,
-            SimplifyOptions::None,
-            None,
-        );
-        let tris: Vec<[u32; 3]> = kept.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
-        let (p, t) = compact(positions, &tris);
+        let (p, t) = input.collapse(target);
         let within = p.len() <= max_vertices;
         let count = p.len();
         best = Some((p, t));
@@ -44,6 +35,52 @@ pub fn simplify(
         target = (target as f64 * max_vertices as f64 / count as f64 * 0.98) as usize;
     }
     best
+}
+
+/// Simplifies to at most `max_triangles` triangles, as far as edge collapses can go: the
+/// resolution levels of the robustness experiment are fractions of the face count (paper
+/// §6.1, Table 2). Returns the mesh unchanged when it is already small enough.
+pub fn simplify_to_triangles(
+    positions: &[DVec3],
+    triangles: &[[u32; 3]],
+    max_triangles: usize,
+) -> (Vec<DVec3>, Vec<[u32; 3]>) {
+    if triangles.len() <= max_triangles {
+        return compact(positions, triangles);
+    }
+    Input::new(positions, triangles).collapse(3 * max_triangles)
+}
+
+/// A mesh in meshoptimizer's form.
+struct Input<'a> {
+    positions: &'a [DVec3],
+    points: Vec<[f32; 3]>,
+    indices: Vec<u32>,
+}
+
+impl<'a> Input<'a> {
+    fn new(positions: &'a [DVec3], triangles: &[[u32; 3]]) -> Self {
+        Self {
+            positions,
+            points: positions.iter().map(|p| p.as_vec3().to_array()).collect(),
+            indices: triangles.iter().flatten().copied().collect(),
+        }
+    }
+
+    /// Quadric edge collapses down to `target` indices (no error bound), unused vertices
+    /// dropped.
+    fn collapse(&self, target: usize) -> (Vec<DVec3>, Vec<[u32; 3]>) {
+        let kept = meshopt::simplify_decoder(
+            &self.indices,
+            &self.points,
+            target.max(3),
+            f32::MAX,
+            SimplifyOptions::None,
+            None,
+        );
+        let tris: Vec<[u32; 3]> = kept.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
+        compact(self.positions, &tris)
+    }
 }
 
 #[cfg(test)]
@@ -69,6 +106,10 @@ mod tests {
         let (p, t) = simplify(&positions, &triangles, 1000).unwrap();
         assert!(p.len() <= 1000 && p.len() > 500, "{} vertices", p.len());
         assert!(!t.is_empty());
+        assert!(p.iter().all(|q| positions.contains(q)));
+
+        let (p, t) = simplify_to_triangles(&positions, &triangles, 1000);
+        assert!(t.len() <= 1000 && t.len() > 900, "{} triangles", t.len());
         assert!(p.iter().all(|q| positions.contains(q)));
     }
 }

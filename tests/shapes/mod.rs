@@ -268,3 +268,15 @@ pub fn star(subdivisions: u32, tips: &[DVec3]) -> RawMesh {
 pub fn five_tips() -> Vec<DVec3> {
     vec![DVec3::X, -DVec3::X, DVec3::Y, -DVec3::Y, DVec3::Z]
 }
+
+/// Writes `mesh` as a Wavefront OBJ file.
+pub fn write_obj(path: &std::path::Path, mesh: &RawMesh) {
+    let mut text = String::new();
+    for p in &mesh.positions {
+        text += &format!("v {} {} {}\n", p.x, p.y, p.z);
+    }
+    for t in &mesh.triangles {
+        text += &format!("f {} {} {}\n", t[0] + 1, t[1] + 1, t[2] + 1);
+    }
+    std::fs::write(path, text).unwrap();
+}

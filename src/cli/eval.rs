@@ -1,0 +1,195 @@
+//! `salient eval retrieval|robustness|study`: the evaluation protocol of SPEC §7.
+
+use std::path::{Path, PathBuf};
+use std::sync::Mutex;
+
+use anyhow::Context;
+use indicatif::{ProgressBar, ProgressStyle};
+
+use salient::collection::{SignatureCache, CACHE_DIR};
+use salient::eval::retrieval::{self, EvalMethod};
+use salient::eval::{robustness, study, LabelledCollection, Progress};
+use salient::mesh::load_path;
+use salient::Limits;
+
+#[derive(Debug, clap::Args)]
+pub struct Args {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Debug, clap::Subcommand)]
+enum Command {
+    /// Leave-one-out retrieval over a labelled collection (CLASS/MODEL.ext or labels.tsv):
+    /// NN, FT, ST, E, DCG, mAP and precision–recall per method.
+    Retrieval(RetrievalArgs),
+    /// Re-extract one mesh simplified, noisy and moved; count the salient points found again.
+    Robustness(RobustnessArgs),
+    /// Vary W, the penalty, K, flat_max and D_g one at a time; tune on half of each class,
+    /// judge on the other half.
+    Study(StudyArgs),
+}
+
+#[derive(Debug, clap::Args)]
+struct StudyArgs {
+    /// The labelled collection.
+    dir: PathBuf,
+    /// Where study.json and study.md go.
+    #[arg(long, default_value = "salient-study")]
+    out: PathBuf,
+    #[command(flatten)]
+    common: Common,
+}
+
+#[derive(Debug, clap::Args)]
+struct RobustnessArgs {
+    /// The mesh file.
+    mesh: PathBuf,
+    /// Where robustness.json and robustness.md go.
+    #[arg(long, default_value = "salient-robustness")]
+    out: PathBuf,
+    /// Seed of the noise and the motion.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Parameters as JSON (fields left out keep the SPEC defaults).
+    #[arg(long)]
+    params: Option<PathBuf>,
+}
+
+#[derive(Debug, clap::Args)]
+struct RetrievalArgs {
+    /// The labelled collection.
+    dir: PathBuf,
+    /// Methods to compare: ecc, d2, ecc-paper.
+    #[arg(long, value_delimiter = ',', default_value = "ecc,d2,ecc-paper")]
+    methods: Vec<EvalMethod>,
+    /// Where report.json, report.md, pr.png, pr.svg and the distance matrices go.
+    #[arg(long, default_value = "salient-report")]
+    out: PathBuf,
+    #[command(flatten)]
+    common: Common,
+}
+
+/// Options shared by the subcommands that extract a collection.
+#[derive(Debug, clap::Args)]
+struct Common {
+    /// Where signatures are cached (default: DIR/.salient-cache).
+    #[arg(long)]
+    cache_dir: Option<PathBuf>,
+    /// Parameters as JSON for the default method (fields left out keep the SPEC defaults).
+    #[arg(long)]
+    params: Option<PathBuf>,
+}
+
+impl Common {
+    fn cache_dir(&self, collection: &Path) -> PathBuf {
+        self.cache_dir
+            .clone()
+            .unwrap_or_else(|| collection.join(CACHE_DIR))
+    }
+}
+
+pub fn run(args: Args) -> anyhow::Result<()> {
+    match args.command {
+        Command::Retrieval(args) => retrieval(args),
+        Command::Robustness(args) => robustness(args),
+        Command::Study(args) => study(args),
+    }
+}
+
+fn study(args: StudyArgs) -> anyhow::Result<()> {
+    let params = super::load_params(args.common.params.as_ref())?;
+    params.validate()?;
+    let collection = LabelledCollection::open(&args.dir)?;
+    let cache_dir = args.common.cache_dir(&args.dir);
+    let report = study::run(
+        &collection,
+        &params,
+        &cache_dir,
+        &Limits::default(),
+        &Bar::default(),
+    )?;
+    report
+        .write(&args.out)
+        .with_context(|| format!("writing the report into {}", args.out.display()))?;
+    print!("{}", report.markdown());
+    Ok(())
+}
+
+fn robustness(args: RobustnessArgs) -> anyhow::Result<()> {
+    let params = super::load_params(args.params.as_ref())?;
+    let raw = load_path(&args.mesh, &Limits::default())
+        .with_context(|| args.mesh.display().to_string())?;
+    let report = robustness::run(&args.mesh.display().to_string(), &raw, &params, args.seed)
+        .with_context(|| args.mesh.display().to_string())?;
+    report
+        .write(&args.out)
+        .with_context(|| format!("writing the report into {}", args.out.display()))?;
+    print!("{}", report.markdown());
+    Ok(())
+}
+
+fn retrieval(args: RetrievalArgs) -> anyhow::Result<()> {
+    let params = super::load_params(args.common.params.as_ref())?;
+    params.validate()?;
+    let collection = LabelledCollection::open(&args.dir)?;
+    let cache_dir = args.common.cache_dir(&args.dir);
+    let (report, matrices) = retrieval::run(
+        &collection,
+        &args.methods,
+        &params,
+        |p| SignatureCache::new(&cache_dir, p),
+        &Limits::default(),
+        &Bar::default(),
+    )?;
+    report
+        .write(&args.out, &matrices)
+        .with_context(|| format!("writing the report into {}", args.out.display()))?;
+    println!("{} models, {} classes", report.models, report.classes);
+    println!(
+        "{:<10} {:>6} {:>6} {:>6} {:>6} {:>6} {:>6}",
+        "method", "NN", "FT", "ST", "E", "DCG", "mAP"
+    );
+    for m in &report.methods {
+        print!("{:<10}", m.method.name());
+        for (_, x) in m.evaluation.scores.measures() {
+            print!(" {x:>6.3}");
+        }
+        println!();
+    }
+    println!("report: {}", args.out.join("report.md").display());
+    Ok(())
+}
+
+/// A progress bar on stderr, one per step.
+#[derive(Default)]
+struct Bar(Mutex<Option<ProgressBar>>);
+
+impl Progress for Bar {
+    fn start(&self, step: &str, total: usize) {
+        let bar = ProgressBar::new(total as u64).with_style(
+            ProgressStyle::with_template("{prefix:>12} {bar:40} {pos}/{len} {elapsed} {msg}")
+                .expect("a valid template"),
+        );
+        bar.set_prefix(step.to_string());
+        *self.0.lock().expect("no panic while holding the bar") = Some(bar);
+    }
+
+    fn advance(&self, item: &str) {
+        if let Some(bar) = &*self.0.lock().expect("no panic while holding the bar") {
+            bar.set_message(item.to_string());
+            bar.inc(1);
+        }
+    }
+
+    fn finish(&self) {
+        if let Some(bar) = self
+            .0
+            .lock()
+            .expect("no panic while holding the bar")
+            .take()
+        {
+            bar.finish_with_message("done");
+        }
+    }
+}
