@@ -1,6 +1,6 @@
 //! `salient ingest` against the real server on a loopback port with a fresh store: a folder
 //! goes in, a second run skips it, a corrupt file fails alone, and an overloaded server still
-//! gets everything thanks to retries.
+//! gets everything thanks to retries. Also `salient health`, the container's health check.
 
 mod shapes;
 
@@ -260,4 +260,30 @@ fn an_unreachable_server_ends_the_run_at_once() {
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(stderr.contains("cannot reach the server"), "{stderr}");
     assert!(stderr.contains("gave up after 2 attempts"), "{stderr}");
+}
+
+#[test]
+fn health_answers_for_a_running_server_only() {
+    let server = Server::start(&[]);
+    let health = |args: &[&str], addr: Option<&str>| {
+        let mut command = Command::new(BIN);
+        command.arg("health").args(args).env_remove("SALIENT_ADDR");
+        if let Some(addr) = addr {
+            command.env("SALIENT_ADDR", addr);
+        }
+        command.output().unwrap()
+    };
+    let out = health(&[&server.url], None);
+    assert!(out.status.success());
+    assert_eq!(String::from_utf8_lossy(&out.stdout), "ok\n");
+    // Without a URL it asks the address `serve` is configured with, as the container does;
+    // an unspecified address is asked on the loopback.
+    let port = server.url.rsplit(':').next().unwrap().to_string();
+    assert!(health(&[], Some(&format!("0.0.0.0:{port}")))
+        .status
+        .success());
+    drop(server);
+    let out = health(&[], Some(&format!("127.0.0.1:{port}")));
+    assert_eq!(out.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("does not answer"));
 }
