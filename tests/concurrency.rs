@@ -8,7 +8,6 @@ use std::collections::BTreeSet;
 use std::time::{Duration, Instant};
 
 use reqwest::{Client, StatusCode};
-use serde_json::Value;
 use server::{obj, Server};
 
 /// Eight clients, 200 requests mixing adds and searches: every acknowledged model is listed
@@ -58,21 +57,7 @@ async fn concurrent_adds_and_searches_keep_exactly_the_acknowledged_models() {
     for client in clients {
         expected.extend(client.await.unwrap());
     }
-    let listed: Value = Client::new()
-        .get(server.at("/v1/models?limit=1000"))
-        .send()
-        .await
-        .unwrap()
-        .json()
-        .await
-        .unwrap();
-    let listed: BTreeSet<String> = listed["models"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .map(|m| m["id"].as_str().unwrap().to_string())
-        .collect();
-    assert_eq!(listed, expected);
+    assert_eq!(server.listed_ids().await, expected);
     assert_eq!(expected.len(), 8 * 17);
 }
 

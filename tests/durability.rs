@@ -59,20 +59,7 @@ async fn acknowledged_models_survive_a_kill_and_nothing_is_half_written() {
 
     let server = Server::start(&store, &[]);
     let client = Client::new();
-    let page: Value = client
-        .get(server.at("/v1/models?limit=1000"))
-        .send()
-        .await
-        .unwrap()
-        .json()
-        .await
-        .unwrap();
-    let listed: BTreeSet<String> = page["models"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .map(|m| m["id"].as_str().unwrap().to_string())
-        .collect();
+    let listed = server.listed_ids().await;
     let acknowledged = acknowledged.lock().unwrap().clone();
     assert!(
         acknowledged.len() >= 6,

@@ -60,6 +60,22 @@ impl Server {
         let _ = self.child.wait();
     }
 
+    /// The ids of every stored model (one page of up to 1 000).
+    pub async fn listed_ids(&self) -> std::collections::BTreeSet<String> {
+        let page: serde_json::Value = reqwest::get(self.at("/v1/models?limit=1000"))
+            .await
+            .unwrap()
+            .json()
+            .await
+            .unwrap();
+        page["models"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|m| m["id"].as_str().unwrap().to_string())
+            .collect()
+    }
+
     /// What the server wrote to stderr.
     pub fn log(&self) -> String {
         std::fs::read_to_string(&self.log).unwrap_or_default()
