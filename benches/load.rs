@@ -329,7 +329,11 @@ fn main() {
     println!("|---|---|---|---|---|---|---|---|");
     let data = tempfile::tempdir().expect("a temporary folder");
     let runtime = tokio::runtime::Runtime::new().expect("a runtime");
-    let client = reqwest::Client::new();
+    // A stuck server fails the run instead of hanging it.
+    let client = reqwest::Client::builder()
+        .timeout(Duration::from_secs(60))
+        .build()
+        .expect("a client");
     let mut stored = 0;
     for &size in &sizes {
         let clock = Instant::now();
@@ -362,5 +366,31 @@ fn main() {
                 .body(bodies[n % bodies.len()].clone())
         }));
         report(size, "POST /v1/search, star (6 971 vertices)", run);
+
+        // Stored-model searches while an ingest keeps two extractions running: the figure an
+        // asset library sees while it indexes uploads. New content per size (a comment line
+        // changes the hash), so that nothing is skipped.
+        let uploads = tempfile::tempdir().expect("a temporary folder");
+        for (i, obj) in queries[MESHES..].iter().enumerate() {
+            let text = format!("# {size}\n{obj}");
+            std::fs::write(uploads.path().join(format!("new{i}.obj")), text).expect("writes");
+        }
+        let mut ingesting = Command::new(BIN)
+            .arg("ingest")
+            .arg(uploads.path())
+            .args(["--server", &server.url, "--concurrency", "2"])
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .expect("the client runs");
+        std::thread::sleep(Duration::from_millis(500));
+        let (c, u) = (client.clone(), server.url.clone());
+        let run = runtime.block_on(closed_loop(budget, usize::MAX, move |n| {
+            let id = (n * 7919) % size;
+            c.get(format!("{u}/v1/models/m{id:05}/similar?k=10"))
+        }));
+        let _ = ingesting.kill();
+        let _ = ingesting.wait();
+        report(size, "GET /v1/models/{id}/similar during ingest", run);
     }
 }
