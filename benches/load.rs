@@ -12,10 +12,12 @@
 //! the library (`Store::put`) with the signatures of the ingested meshes, each copy perturbed
 //! so that no two stored models are equal, then served by a fresh server.
 
+#[path = "../tests/server/mod.rs"]
+mod server;
+
 use std::f64::consts::PI;
-use std::io::{BufRead, BufReader};
 use std::path::Path;
-use std::process::{Child, Command, Stdio};
+use std::process::{Command, Stdio};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
@@ -25,6 +27,7 @@ use rand_chacha::ChaCha8Rng;
 use salient::store::{SledStore, Store};
 use salient::Signature;
 use serde_json::Value;
+use server::Server;
 
 const BIN: &str = env!("CARGO_BIN_EXE_salient");
 /// UV sphere resolution: 69 rings of 101 vertices and two poles, 6 971 vertices.
@@ -85,45 +88,10 @@ fn random_star(rng: &mut ChaCha8Rng) -> String {
     star_obj(&tips, rng.gen_range(0.2..0.45))
 }
 
-/// `salient serve` on a free port; killed on drop (acknowledged writes are already durable).
-struct Server {
-    child: Child,
-    url: String,
-}
-
-impl Server {
-    fn start(data: &Path) -> Server {
-        let mut child = Command::new(BIN)
-            .args(["serve", "--addr", "127.0.0.1:0", "--data"])
-            .arg(data)
-            .env("RUST_LOG", "warn")
-            .stdout(Stdio::piped())
-            .spawn()
-            .expect("the server starts");
-        let mut line = String::new();
-        BufReader::new(child.stdout.take().expect("piped"))
-            .read_line(&mut line)
-            .expect("the server prints its address");
-        let url = line
-            .trim()
-            .strip_prefix("listening on ")
-            .expect("a listening line")
-            .to_string();
-        Server { child, url }
-    }
-}
-
-impl Drop for Server {
-    fn drop(&mut self) {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
-    }
-}
-
 /// Uploads/s of `salient ingest` with `concurrency` into an empty store.
 fn ingest(meshes: &Path, concurrency: usize) -> f64 {
     let data = tempfile::tempdir().expect("a temporary folder");
-    let server = Server::start(data.path());
+    let server = Server::start(&data.path().join("store"), &[]);
     let out = Command::new(BIN)
         .arg("ingest")
         .arg(meshes)
@@ -306,9 +274,10 @@ fn main() {
     }
 
     // The signatures the large stores are made of: one more ingest, kept.
-    let base = tempfile::tempdir().expect("a temporary folder");
+    let base_dir = tempfile::tempdir().expect("a temporary folder");
+    let base = base_dir.path().join("store");
     {
-        let server = Server::start(base.path());
+        let server = Server::start(&base, &[]);
         let status = Command::new(BIN)
             .arg("ingest")
             .arg(meshes.path())
@@ -327,7 +296,8 @@ fn main() {
         "| models | request (k = 10) | requests | req/s | p50 ms | p99 ms | search_ms p50 | exact EMDs |"
     );
     println!("|---|---|---|---|---|---|---|---|");
-    let data = tempfile::tempdir().expect("a temporary folder");
+    let data_dir = tempfile::tempdir().expect("a temporary folder");
+    let data = data_dir.path().join("store");
     let runtime = tokio::runtime::Runtime::new().expect("a runtime");
     // A stuck server fails the run instead of hanging it.
     let client = reqwest::Client::builder()
@@ -337,14 +307,14 @@ fn main() {
     let mut stored = 0;
     for &size in &sizes {
         let clock = Instant::now();
-        fill(data.path(), base.path(), stored, size);
+        fill(&data, &base, stored, size);
         eprintln!(
             "filled {} models in {:.1} s",
             size - stored,
             clock.elapsed().as_secs_f64()
         );
         stored = size;
-        let server = Server::start(data.path());
+        let server = Server::start(&data, &[]);
         let url = server.url.clone();
         let (c, u) = (client.clone(), url.clone());
         let run = runtime.block_on(closed_loop(budget, usize::MAX, move |n| {

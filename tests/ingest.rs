@@ -2,95 +2,54 @@
 //! goes in, a second run skips it, a corrupt file fails alone, and an overloaded server still
 //! gets everything thanks to retries. Also `salient health`, the container's health check.
 
+mod server;
 mod shapes;
 
-use std::io::{BufRead, BufReader};
 use std::path::Path;
-use std::process::{Child, Command, Output, Stdio};
+use std::process::{Command, Output};
 
 use glam::DMat4;
 use salient::mesh::RawMesh;
 use serde_json::Value;
+use server::Server;
 
 const BIN: &str = env!("CARGO_BIN_EXE_salient");
 
-/// `salient serve` on a free port with its store in a temporary folder; killed on drop.
-struct Server {
-    child: Child,
-    url: String,
-    _data: tempfile::TempDir,
+/// A server on a fresh store in `dir`.
+fn serve(dir: &tempfile::TempDir, flags: &[&str]) -> Server {
+    Server::start(&dir.path().join("store"), flags)
 }
 
-impl Server {
-    fn start(flags: &[&str]) -> Server {
-        let data = tempfile::tempdir().unwrap();
-        let mut child = Command::new(BIN)
-            .args(["serve", "--addr", "127.0.0.1:0", "--data"])
-            .arg(data.path())
-            .args(flags)
-            .env("RUST_LOG", "warn")
-            .stdout(Stdio::piped())
-            .stderr(Stdio::null())
-            .spawn()
-            .expect("the server starts");
-        let mut line = String::new();
-        BufReader::new(child.stdout.take().unwrap())
-            .read_line(&mut line)
-            .unwrap();
-        let url = line
-            .trim()
-            .strip_prefix("listening on ")
-            .unwrap_or_else(|| panic!("unexpected first line {line:?}"))
-            .to_string();
-        Server {
-            child,
-            url,
-            _data: data,
-        }
-    }
-
-    fn get(&self, path: &str) -> String {
-        let url = format!("{}{path}", self.url);
-        tokio::runtime::Builder::new_current_thread()
-            .enable_all()
-            .build()
-            .unwrap()
-            .block_on(async { reqwest::get(url).await?.error_for_status()?.text().await })
-            .unwrap()
-    }
-
-    /// Every stored model, by id.
-    fn models(&self) -> Vec<Value> {
-        let page: Value = serde_json::from_str(&self.get("/v1/models?limit=1000")).unwrap();
-        page["models"].as_array().unwrap().clone()
-    }
+fn get(server: &Server, path: &str) -> String {
+    tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .unwrap()
+        .block_on(async {
+            reqwest::get(server.at(path))
+                .await?
+                .error_for_status()?
+                .text()
+                .await
+        })
+        .unwrap()
 }
 
-impl Drop for Server {
-    fn drop(&mut self) {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
-    }
+/// Every stored model, in id order.
+fn models(server: &Server) -> Vec<Value> {
+    let page: Value = serde_json::from_str(&get(server, "/v1/models?limit=1000")).unwrap();
+    page["models"].as_array().unwrap().clone()
 }
 
+/// Writes `mesh` as OBJ at `path`, creating its folder.
 fn write_obj(path: &Path, mesh: &RawMesh) {
     std::fs::create_dir_all(path.parent().unwrap()).unwrap();
-    let mut text = String::new();
-    for p in &mesh.positions {
-        text += &format!("v {} {} {}\n", p.x, p.y, p.z);
-    }
-    for t in &mesh.triangles {
-        text += &format!("f {} {} {}\n", t[0] + 1, t[1] + 1, t[2] + 1);
-    }
-    std::fs::write(path, text).unwrap();
+    shapes::write_obj(path, mesh);
 }
 
 fn copy_fixture(name: &str, to: &Path) {
     std::fs::create_dir_all(to.parent().unwrap()).unwrap();
-    let from = Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("tests/fixtures")
-        .join(name);
-    std::fs::copy(from, to).unwrap();
+    std::fs::write(to, server::fixture(name)).unwrap();
 }
 
 /// Runs `salient ingest DIR --server URL --json …`: the output and the parsed summary.
@@ -129,7 +88,8 @@ fn ingests_a_folder_then_skips_it() {
         &shapes::star(4, &shapes::five_tips()),
     );
     write_obj(&root.join("shapes/cone.obj"), &shapes::cone(0.5, 40, 48));
-    let server = Server::start(&[]);
+    let store = tempfile::tempdir().unwrap();
+    let server = serve(&store, &[]);
 
     let (out, summary) = ingest(
         root,
@@ -138,8 +98,8 @@ fn ingests_a_folder_then_skips_it() {
     );
     assert!(out.status.success(), "{summary}");
     assert_eq!(counts(&summary), [5, 5, 0, 0], "{summary}");
-    let models = server.models();
-    let listed: Vec<_> = models
+    let before = models(&server);
+    let listed: Vec<_> = before
         .iter()
         .map(|m| {
             (
@@ -159,16 +119,16 @@ fn ingests_a_folder_then_skips_it() {
             ("shapes-star", "star", Some("shapes")),
         ]
     );
-    assert!(models
+    assert!(before
         .iter()
         .all(|m| m["tags"] == serde_json::json!(["test", "bulk"])));
-    assert_eq!(models[1]["format"], "gltf");
-    assert_eq!(models[1]["resources"].as_object().unwrap().len(), 1);
+    assert_eq!(before[1]["format"], "gltf");
+    assert_eq!(before[1]["resources"].as_object().unwrap().len(), 1);
 
     let (out, summary) = ingest(root, &server, &["--class-from-folder"]);
     assert!(out.status.success(), "{summary}");
     assert_eq!(counts(&summary), [5, 0, 5, 0], "{summary}");
-    assert_eq!(server.models(), models, "a second run changes nothing");
+    assert_eq!(models(&server), before, "a second run changes nothing");
 }
 
 #[test]
@@ -183,7 +143,8 @@ fn a_corrupt_file_fails_with_its_reason_while_the_rest_succeed() {
     .unwrap();
     // A multi-file glTF without its buffer fails before anything is sent.
     copy_fixture("gltf_external/tetra.gltf", &root.join("lonely.gltf"));
-    let server = Server::start(&[]);
+    let store = tempfile::tempdir().unwrap();
+    let server = serve(&store, &[]);
 
     let (out, summary) = ingest(root, &server, &[]);
     assert_eq!(out.status.code(), Some(1));
@@ -205,7 +166,7 @@ fn a_corrupt_file_fails_with_its_reason_while_the_rest_succeed() {
         "{summary}"
     );
     assert!(String::from_utf8_lossy(&out.stderr).contains("error: 2 of 3 files failed"));
-    let ids: Vec<_> = server.models().iter().map(|m| m["id"].clone()).collect();
+    let ids: Vec<_> = models(&server).iter().map(|m| m["id"].clone()).collect();
     assert_eq!(ids, ["good"]);
 }
 
@@ -221,18 +182,19 @@ fn an_overloaded_server_still_gets_everything() {
         );
     }
     // One extraction at a time and no queue: concurrent uploads get 503 with Retry-After.
-    let server = Server::start(&["--workers", "1", "--queue-depth", "0"]);
+    let store = tempfile::tempdir().unwrap();
+    let server = serve(&store, &["--workers", "1", "--queue-depth", "0"]);
 
     let (out, summary) = ingest(dir.path(), &server, &["--concurrency", "4"]);
     assert!(out.status.success(), "{summary}");
     assert_eq!(counts(&summary), [6, 6, 0, 0], "{summary}");
     assert!(summary["retries"].as_u64().unwrap() > 0, "{summary}");
-    let metrics = server.get("/metrics");
+    let metrics = get(&server, "/metrics");
     assert!(
         metrics.contains(r#"route="/v1/models",status="503""#),
         "the server did turn uploads away"
     );
-    assert_eq!(server.models().len(), 6);
+    assert_eq!(models(&server).len(), 6);
 }
 
 #[test]
@@ -264,7 +226,8 @@ fn an_unreachable_server_ends_the_run_at_once() {
 
 #[test]
 fn health_answers_for_a_running_server_only() {
-    let server = Server::start(&[]);
+    let store = tempfile::tempdir().unwrap();
+    let server = serve(&store, &[]);
     let health = |args: &[&str], addr: Option<&str>| {
         let mut command = Command::new(BIN);
         command.arg("health").args(args).env_remove("SALIENT_ADDR");
