@@ -21,13 +21,9 @@ pub struct Status {
 fn status(state: &AppState) -> Status {
     Status {
         status: "ok".into(),
-        models: state
-            .0
-            .catalog
-            .read()
-            .expect("catalog lock poisoned")
-            .records
-            .len(),
+        // The gauge, not the catalog: a catalog reader queues behind a pending write, which
+        // waits for running searches; liveness must not.
+        models: state.0.metrics.models.get().max(0) as usize,
         extractions_in_flight: state.0.pool.in_flight(),
     }
 }
