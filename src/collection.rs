@@ -9,7 +9,7 @@ use sha2::{Digest, Sha256};
 use crate::extract::extract_path;
 use crate::mesh::Format;
 use crate::params::{Limits, Params};
-use crate::signature::{describe, hex, Signature};
+use crate::signature::{describe, hex, Signature, SIGNATURE_FORMAT};
 use crate::{Error, Result};
 
 /// Name of the cache folder [`SignatureCache::beside`] creates in a collection.
@@ -41,7 +41,8 @@ pub fn find_meshes(dir: &Path) -> Result<Vec<PathBuf>> {
     Ok(files)
 }
 
-/// Signatures on disk, one file per (file content, parameters) pair.
+/// Signatures on disk, one file per (file content, parameters, signature format) triple: a
+/// new format may hold descriptors an old entry lacks.
 #[derive(Debug, Clone)]
 pub struct SignatureCache {
     dir: PathBuf,
@@ -117,6 +118,7 @@ impl SignatureCache {
         let mut hasher = Sha256::new();
         hasher.update(bytes);
         hasher.update(&self.params_key);
+        hasher.update(SIGNATURE_FORMAT.to_le_bytes());
         self.dir.join(format!("{}.sig", hex(&hasher.finalize())))
     }
 }

@@ -7,7 +7,8 @@
 //! - [`ecc`]: the extended cone-curvature vector of every vertex (§2.4);
 //! - [`extract`]: the pipeline from a loaded mesh to per-vertex ECC, with statistics;
 //! - [`salient`]: k-means candidates, non-maximum suppression, salient regions (§3);
-//! - [`descriptor`]: D2 shape distributions of regions and of whole meshes (§4, §6);
+//! - [`descriptor`]: D2 shape distributions of regions and whole meshes (§4, §6), and the
+//!   Light Field Descriptor baseline (§6);
 //! - [`signature`]: a model's features, parameters and statistics; JSON and binary (§4);
 //! - [`emd`]: exact Earth Mover's Distance by the transportation simplex (§5);
 //! - [`similarity`]: ground distance, penalised EMD, D2 baseline distance, lower bound (§5–6);
@@ -17,7 +18,8 @@
 //! - [`api`]: the HTTP service (SPEC §8);
 //! - [`ingest`]: planning a bulk upload of a mesh folder to the service (`salient ingest`).
 //! - [`eval`]: the evaluation protocol — retrieval measures, robustness, parameter study (§7);
-//! - [`render`]: pictures of a mesh with its salient points and regions (paper Fig. 10).
+//! - [`render`]: pictures of a mesh with its salient points and regions (paper Fig. 10);
+//! - [`raster`]: triangle scan conversion shared by pictures and silhouettes.
 
 pub mod api;
 pub mod collection;
@@ -32,6 +34,7 @@ pub mod ingest;
 pub mod mesh;
 pub mod params;
 pub mod rank;
+pub mod raster;
 pub mod render;
 pub mod salient;
 pub mod signature;

@@ -27,6 +27,8 @@ pub enum Method {
     Ecc,
     /// The global D2 shape distribution baseline (SPEC §6).
     D2,
+    /// The Light Field Descriptor baseline (SPEC §6).
+    Lfd,
 }
 
 impl fmt::Display for Method {
@@ -34,6 +36,7 @@ impl fmt::Display for Method {
         f.write_str(match self {
             Method::Ecc => "ecc",
             Method::D2 => "d2",
+            Method::Lfd => "lfd",
         })
     }
 }
@@ -44,16 +47,31 @@ impl FromStr for Method {
         match s.to_ascii_lowercase().as_str() {
             "ecc" => Ok(Method::Ecc),
             "d2" => Ok(Method::D2),
-            other => Err(format!("unknown method `{other}` (expected ecc or d2)")),
+            "lfd" => Ok(Method::Lfd),
+            other => Err(format!(
+                "unknown method `{other}` (expected ecc, d2 or lfd)"
+            )),
         }
     }
 }
 
-/// Distance between two signatures under `method`.
+/// Distance between two signatures under `method`; infinite for [`Method::Lfd`] when either
+/// signature predates the light field descriptor (see [`Method::comparable`]).
 pub fn distance(method: Method, p: &Signature, q: &Signature, params: &SimilarityParams) -> f64 {
     match method {
         Method::Ecc => compare(p, q, params).sim,
         Method::D2 => d2_distance(p, q),
+        Method::Lfd => match (&p.lfd, &q.lfd) {
+            (Some(a), Some(b)) => a.distance(b),
+            _ => f64::INFINITY,
+        },
+    }
+}
+
+impl Method {
+    /// Whether `signature` holds what this method compares.
+    pub fn comparable(self, signature: &Signature) -> bool {
+        self != Method::Lfd || signature.lfd.is_some()
     }
 }
 
@@ -169,7 +187,7 @@ impl Index {
         match method {
             Method::Ecc => self.search_pruned(query, k, keep),
             // A D2 distance costs less than any bound would.
-            Method::D2 => self.exhaustive(query, k, method, &self.params, keep),
+            Method::D2 | Method::Lfd => self.exhaustive(query, k, method, &self.params, keep),
         }
     }
 
@@ -184,13 +202,14 @@ impl Index {
         params: &SimilarityParams,
         keep: &(dyn Fn(&str) -> bool + Sync),
     ) -> Ranking {
-        if method == Method::D2 || *params == self.params {
+        if method != Method::Ecc || *params == self.params {
             return self.search_where(query, k, method, keep);
         }
         self.exhaustive(query, k, method, params, keep)
     }
 
     /// Every entry's exact distance, no pruning: the reference the pruned search must match.
+    /// Entries the method cannot compare (see [`Method::comparable`]) are left out.
     pub fn search_exhaustive(&self, query: &Signature, k: usize, method: Method) -> Ranking {
         self.exhaustive(query, k, method, &self.params, &|_| true)
     }
@@ -206,7 +225,7 @@ impl Index {
         let mut hits: Vec<Hit> = self
             .entries
             .par_iter()
-            .filter(|e| keep(&e.id))
+            .filter(|e| keep(&e.id) && method.comparable(&e.signature))
             .map(|e| Hit {
                 id: e.id.clone(),
                 distance: distance(method, query, &e.signature, params),

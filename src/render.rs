@@ -11,6 +11,7 @@ use glam::{DMat3, DVec3};
 use image::{Rgb, RgbImage};
 
 use crate::extract::Extraction;
+use crate::raster::fill_triangle;
 use crate::salient::SalientPoint;
 use crate::{Error, Result};
 
@@ -92,41 +93,19 @@ impl Tile {
         let light = DVec3::new(-0.3, 0.4, 1.0).normalize();
         let shade = 0.3 + 0.7 * normal.dot(light).abs();
         let [a, b, c] = t.map(|p| camera.project(p, self.size));
-        let area = edge(a, b, c);
-        if area.abs() < 1e-12 {
-            return;
-        }
-        let max = self.size as f64 - 1.0;
-        let (x0, x1) = (
-            a.x.min(b.x).min(c.x).max(0.0),
-            a.x.max(b.x).max(c.x).min(max),
-        );
-        let (y0, y1) = (
-            a.y.min(b.y).min(c.y).max(0.0),
-            a.y.max(b.y).max(c.y).min(max),
-        );
-        if x0 > x1 || y0 > y1 {
-            return;
-        }
-        for y in y0.ceil() as u32..=y1.floor() as u32 {
-            for x in x0.ceil() as u32..=x1.floor() as u32 {
-                let p = DVec3::new(x as f64, y as f64, 0.0);
-                let (wa, wb, wc) = (
-                    edge(b, c, p) / area,
-                    edge(c, a, p) / area,
-                    edge(a, b, p) / area,
-                );
-                if wa < 0.0 || wb < 0.0 || wc < 0.0 {
-                    continue;
-                }
+        let size = self.size;
+        fill_triangle(
+            [a, b, c].map(|p| p.truncate()),
+            size,
+            |x, y, [wa, wb, wc]| {
                 let z = wa * a.z + wb * b.z + wc * c.z;
-                let i = (y * self.size + x) as usize;
+                let i = (y * size + x) as usize;
                 if z + tolerance >= self.depth[i] {
                     self.depth[i] = self.depth[i].max(z);
                     self.colour[i] = base.map(|c| c * shade);
                 }
-            }
-        }
+            },
+        );
     }
 
     /// A disc of `radius` pixels at the point's pixel, if the point is not hidden.
@@ -153,11 +132,6 @@ impl Tile {
             }
         }
     }
-}
-
-/// Twice the signed area of `(a, b, p)` in the image plane.
-fn edge(a: DVec3, b: DVec3, p: DVec3) -> f64 {
-    (b.x - a.x) * (p.y - a.y) - (b.y - a.y) * (p.x - a.x)
 }
 
 /// The mesh of `extraction` seen by each of `cameras` in `size`-pixel tiles side by side, with

@@ -1,12 +1,14 @@
 //! A model's signature (SPEC §4): its salient features — ECC vector and region D2 histogram
 //! of each salient point — with positions, region sizes, the parameters that made it and
-//! extraction statistics; plus the global D2 histogram of the SPEC §6 baseline, so that one
-//! stored record serves every method.
+//! extraction statistics; plus the descriptors of the SPEC §6 baselines (global D2 histogram,
+//! Light Field Descriptor), so that one stored record serves every method.
 //!
 //! Two encodings: JSON (serde, full precision) for people and tools, and a compact versioned
 //! binary form for storage ([`Signature::to_bytes`]) that keeps ECC values as `f32` and
 //! histogram bins as `u16` fractions of 65 535 (a quantisation step of 1.5e-5, far below the
-//! Monte Carlo noise of a 2 000-sample D2).
+//! Monte Carlo noise of a 2 000-sample D2). Format 2 appends the light field descriptor
+//! (4.6 KB, already 8-bit) after the format-1 record, so format-1 signatures still read, as
+//! signatures without one.
 
 use std::time::Instant;
 
@@ -16,15 +18,16 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
 
-use crate::descriptor::d2_histogram;
+use crate::descriptor::{d2_histogram, LightFieldDescriptor};
 use crate::extract::{extract, Extraction, ExtractionStats};
 use crate::mesh::{PreparedMesh, RawMesh};
 use crate::params::Params;
 use crate::salient::{self, SalientStats};
 use crate::{Error, Result};
 
-/// Version of the binary encoding; bumped when its layout changes.
-pub const SIGNATURE_FORMAT: u16 = 1;
+/// Version of the binary encoding; bumped when its layout changes. Format 1 (no light field
+/// descriptor) is still read.
+pub const SIGNATURE_FORMAT: u16 = 2;
 const MAGIC: &[u8; 4] = b"SLSG";
 
 /// One salient feature (Eq. 6: `SF = ECC + SD`).
@@ -63,6 +66,10 @@ pub struct Signature {
     pub features: Vec<Feature>,
     /// Global D2 histogram of the whole normalised mesh over `[0, 2]` (SPEC §6).
     pub d2: Vec<f64>,
+    /// Light Field Descriptor (SPEC §6); absent from signatures made before it existed
+    /// (format 1), which `salient reindex` renews.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub lfd: Option<LightFieldDescriptor>,
     pub params: Params,
     pub stats: SignatureStats,
 }
@@ -120,17 +127,22 @@ pub fn describe(extraction: &Extraction, params: &Params) -> Signature {
     let global = d2_histogram(&whole, d2.samples, d2.bins, 2.0, &mut rng(u64::MAX));
     let d2_seconds = clock.elapsed().as_secs_f64();
 
+    let clock = Instant::now();
+    let lfd = LightFieldDescriptor::compute(mesh);
+    let lfd_seconds = clock.elapsed().as_secs_f64();
+
     let mut stats = SignatureStats {
         extraction: extraction.stats.clone(),
         salient: salient_stats,
         salient_seconds,
         d2_seconds,
     };
-    stats.extraction.total_seconds += salient_seconds + d2_seconds;
+    stats.extraction.total_seconds += salient_seconds + d2_seconds + lfd_seconds;
     Signature {
         mesh_hash: hex(&hash),
         features,
         d2: global,
+        lfd: Some(lfd),
         params: params.clone(),
         stats,
     }
@@ -192,8 +204,9 @@ fn dequantise(histogram: &[u16]) -> Vec<f64> {
 }
 
 impl Signature {
-    /// Compact, versioned binary form: `SLSG`, the format version (u16, little endian), then
-    /// the record in `postcard`. Lossy as described in the module documentation.
+    /// Compact, versioned binary form: `SLSG`, the format version (u16, little endian), the
+    /// record in `postcard`, then the optional light field descriptor in `postcard`. Lossy as
+    /// described in the module documentation.
     pub fn to_bytes(&self) -> Vec<u8> {
         let stored = Stored {
             mesh_hash: (0..self.mesh_hash.len() / 2)
@@ -218,7 +231,9 @@ impl Signature {
         };
         let mut bytes = MAGIC.to_vec();
         bytes.extend(SIGNATURE_FORMAT.to_le_bytes());
-        bytes.extend(postcard::to_stdvec(&stored).expect("serialising to memory cannot fail"));
+        for part in [postcard::to_stdvec(&stored), postcard::to_stdvec(&self.lfd)] {
+            bytes.extend(part.expect("serialising to memory cannot fail"));
+        }
         bytes
     }
 
@@ -229,14 +244,19 @@ impl Signature {
             return Err(corrupt("not a salient signature (bad magic)".into()));
         }
         let format = u16::from_le_bytes([bytes[4], bytes[5]]);
-        if format != SIGNATURE_FORMAT {
+        if !(1..=SIGNATURE_FORMAT).contains(&format) {
             return Err(Error::SignatureFormat {
                 found: format,
                 supported: SIGNATURE_FORMAT,
             });
         }
-        let stored: Stored =
-            postcard::from_bytes(&bytes[6..]).map_err(|e| corrupt(e.to_string()))?;
+        let (stored, rest): (Stored, _) =
+            postcard::take_from_bytes(&bytes[6..]).map_err(|e| corrupt(e.to_string()))?;
+        let lfd = match format {
+            1 if rest.is_empty() => None,
+            1 => return Err(corrupt("bytes after the record".into())),
+            _ => postcard::from_bytes(rest).map_err(|e| corrupt(e.to_string()))?,
+        };
         Ok(Signature {
             mesh_hash: hex(&stored.mesh_hash),
             features: stored
@@ -253,6 +273,7 @@ impl Signature {
                 })
                 .collect(),
             d2: dequantise(&stored.d2),
+            lfd,
             params: stored.params,
             stats: stored.stats,
         })

@@ -490,7 +490,7 @@ async fn bad_input_gets_the_right_status_and_the_server_keeps_serving() {
     )
     .await;
     expect_error(
-        search("method=lfd").await.unwrap(),
+        search("method=sh").await.unwrap(),
         StatusCode::BAD_REQUEST,
         "invalid_query",
     )
@@ -567,7 +567,7 @@ async fn search_similar_and_extract() {
     ));
     std::fs::write(dir.path().join("query.obj"), &query).unwrap();
 
-    for method in ["ecc", "d2"] {
+    for method in ["ecc", "d2", "lfd"] {
         let response = client
             .post(server.at(&format!("/v1/search?k=6&method={method}")))
             .header("content-type", "model/obj")
@@ -665,6 +665,16 @@ async fn search_similar_and_extract() {
     )
     .await;
     assert_eq!(weighted["results"][0]["id"], "moved");
+    let by_views = json(
+        client
+            .get(server.at("/v1/models/star/similar?k=2&method=lfd"))
+            .send()
+            .await
+            .unwrap(),
+    )
+    .await;
+    assert_eq!(by_views["method"], "lfd");
+    assert_eq!(by_views["results"][0]["id"], "moved");
     expect_error(
         client
             .get(server.at("/v1/models/nobody/similar"))
@@ -694,6 +704,79 @@ async fn search_similar_and_extract() {
         json(client.get(server.at("/healthz")).send().await.unwrap()).await["models"],
         before
     );
+}
+
+/// A model stored before signatures carried the light field descriptor (format 1) is left
+/// out of `lfd` rankings, and asking for its `lfd` neighbours is a 409 that names the fix.
+#[tokio::test]
+async fn models_stored_without_a_light_field_descriptor() {
+    use salient::store::{SledStore, Store};
+    let dir = tempfile::tempdir().unwrap();
+    let data = dir.path().join("store");
+    let client = Client::new();
+    let mut server = Server::start(&data, &[]);
+    for (id, mesh) in [
+        ("old", shapes::star(3, &shapes::five_tips())),
+        ("new", shapes::cone(0.5, 20, 24)),
+    ] {
+        let response = add(
+            &client,
+            &server,
+            &format!("id={id}"),
+            "model/obj",
+            obj(&mesh),
+        )
+        .await;
+        assert_eq!(response.status(), StatusCode::CREATED);
+    }
+    server.kill();
+    {
+        let store = SledStore::open(&data).unwrap();
+        let record = store.get("old").unwrap().unwrap();
+        let upload = store.upload("old").unwrap().unwrap();
+        let mut signature =
+            salient::Signature::from_bytes(&store.signature("old").unwrap().unwrap()).unwrap();
+        signature.lfd = None;
+        // Format 1 is format 2 without the trailing descriptor (here `None`, one byte).
+        let mut bytes = signature.to_bytes();
+        bytes[4..6].copy_from_slice(&1u16.to_le_bytes());
+        bytes.pop();
+        store.put(&record, &bytes, &upload).unwrap();
+    }
+    let server = Server::start(&data, &[]);
+    assert!(
+        server.log().contains("light field descriptor"),
+        "{}",
+        server.log()
+    );
+    let ranked = json(
+        client
+            .get(server.at("/v1/models/new/similar?method=lfd"))
+            .send()
+            .await
+            .unwrap(),
+    )
+    .await;
+    assert_eq!(ranked["results"].as_array().unwrap().len(), 0, "{ranked}");
+    let ranked = json(
+        client
+            .get(server.at("/v1/models/new/similar?method=ecc"))
+            .send()
+            .await
+            .unwrap(),
+    )
+    .await;
+    assert_eq!(ranked["results"][0]["id"], "old");
+    expect_error(
+        client
+            .get(server.at("/v1/models/old/similar?method=lfd"))
+            .send()
+            .await
+            .unwrap(),
+        StatusCode::CONFLICT,
+        "missing_descriptor",
+    )
+    .await;
 }
 
 #[tokio::test]

@@ -307,6 +307,11 @@ fn search_ranks_a_folder_and_caches_signatures() {
     let d2 = run("d2");
     assert_eq!(d2["method"], "d2");
     assert_eq!(d2["results"][0]["id"], "stars/star.obj");
+    let lfd = run("lfd");
+    assert_eq!(lfd["method"], "lfd");
+    assert_eq!(lfd["cached"], 4);
+    assert_eq!(lfd["results"][0]["id"], "stars/star.obj");
+    assert_eq!(lfd["results"][0]["distance"], 0.0);
 
     let bad = salient(&[
         "search",
@@ -319,7 +324,7 @@ fn search_ranks_a_folder_and_caches_signatures() {
         query.to_str().unwrap(),
         collection.to_str().unwrap(),
         "--method",
-        "lfd",
+        "sh",
     ]);
     assert_ne!(bad.status.code(), Some(0));
 }

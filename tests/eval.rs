@@ -64,6 +64,7 @@ fn retrieval_report_end_to_end() {
         .arg(&collection)
         .arg("--out")
         .arg(&out)
+        .args(["--methods", "ecc,d2,lfd,ecc-paper"])
         .output()
         .unwrap();
     assert!(
@@ -76,7 +77,7 @@ fn retrieval_report_end_to_end() {
         serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
     assert_eq!(json["models"], 9);
     assert_eq!(json["classes"], 3);
-    for method in ["ecc", "d2", "ecc-paper"] {
+    for method in ["ecc", "d2", "lfd", "ecc-paper"] {
         let m = &json["methods"][method];
         for measure in ["NN", "FT", "ST", "E", "DCG", "mAP"] {
             let x = m[measure]
@@ -96,6 +97,9 @@ fn retrieval_report_end_to_end() {
     // a five-tip star its five tips.
     assert_eq!(ecc["features_per_class"]["star5"]["mean"], 5.0);
     assert!(json["methods"]["d2"].get("features_per_class").is_none());
+    assert!(json["methods"]["lfd"].get("features_per_class").is_none());
+    // Silhouettes tell a cone, a sphere-like star and a five-tip star apart.
+    assert_eq!(json["methods"]["lfd"]["NN"], 1.0);
     assert!(ecc["mAP"].as_f64() > json["methods"]["d2"]["mAP"].as_f64());
     // Signatures were cached beside the collection, once per parameter set.
     let cached = std::fs::read_dir(collection.join(".salient-cache"))
@@ -109,7 +113,7 @@ fn retrieval_report_end_to_end() {
     let plot = image::open(out.join("pr.png")).unwrap();
     assert_eq!((plot.width(), plot.height()), (720, 540));
     let svg = std::fs::read_to_string(out.join("pr.svg")).unwrap();
-    assert!(svg.contains("<svg") && svg.contains("ecc-paper"));
+    assert!(svg.contains("<svg") && svg.contains("ecc-paper") && svg.contains("lfd"));
     let csv = std::fs::read_to_string(out.join("distances-ecc.csv")).unwrap();
     assert_eq!(csv.lines().count(), 10);
     assert!(csv.starts_with("id,cone/c-0.obj,"));

@@ -1,5 +1,6 @@
 //! Ranking with the centroid bound returns exactly the top k of a full scan (SPEC §5).
 
+mod shapes;
 mod synthetic;
 
 use salient::rank::{Index, Method};
@@ -55,4 +56,52 @@ fn ties_are_broken_by_id_and_methods_agree_on_self() {
     assert!(index.search(&query, 0, Method::Ecc).hits.is_empty());
     let everything = index.search(&query, 1000, Method::Ecc);
     assert_eq!(everything.hits.len(), index.len());
+}
+
+/// The LFD method ranks by the light field distance and leaves out signatures without a
+/// descriptor (stored before it existed) instead of ranking them last.
+#[test]
+fn lfd_ranks_by_light_field_distance_and_skips_signatures_without_one() {
+    let params = Params::default();
+    let meshes = [
+        ("cone", shapes::cone(0.5, 12, 24)),
+        ("tube", shapes::tube(0.25, 12, 24)),
+        ("star", shapes::star(3, &shapes::five_tips())),
+        ("bowl", shapes::bowl(3)),
+    ];
+    let signatures: Vec<_> = meshes
+        .iter()
+        .map(|(id, m)| (*id, salient::signature::compute(m, &params).unwrap()))
+        .collect();
+    let mut index = Index::new(params.similarity.clone());
+    for (id, s) in &signatures {
+        index.insert(*id, s.clone());
+    }
+    let mut old = signatures[3].1.clone();
+    old.lfd = None;
+    index.insert("old-bowl", old);
+    let query = &signatures[0].1;
+    let ranking = index.search(query, 10, Method::Lfd);
+    let mut expected: Vec<(f64, &str)> = signatures
+        .iter()
+        .map(|(id, s)| {
+            (
+                query
+                    .lfd
+                    .as_ref()
+                    .unwrap()
+                    .distance(s.lfd.as_ref().unwrap()),
+                *id,
+            )
+        })
+        .collect();
+    expected.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(b.1)));
+    let got: Vec<(f64, &str)> = ranking
+        .hits
+        .iter()
+        .map(|h| (h.distance, h.id.as_str()))
+        .collect();
+    assert_eq!(got, expected);
+    assert_eq!(got[0], (0.0, "cone"));
+    assert_eq!(ranking.evaluated, 4);
 }

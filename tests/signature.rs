@@ -98,9 +98,22 @@ fn binary_form_round_trips_compactly_and_refuses_garbage() {
     let raw = salient::mesh::load_path(&fixture, &Default::default()).unwrap();
     let s = signature(&raw);
     let bytes = s.to_bytes();
-    eprintln!("{} features, {} bytes", s.features.len(), bytes.len());
-    assert!(bytes.len() < 4096);
+    let without_lfd = Signature {
+        lfd: None,
+        ..s.clone()
+    }
+    .to_bytes();
+    eprintln!(
+        "{} features, {} bytes ({} without the light field descriptor)",
+        s.features.len(),
+        bytes.len(),
+        without_lfd.len()
+    );
+    assert!(without_lfd.len() < 4096);
+    // 100 images × (45 coefficients + a length byte) + the vector's length and `Some`.
+    assert_eq!(bytes.len() - without_lfd.len(), 100 * 46 + 1);
     let back = Signature::from_bytes(&bytes).unwrap();
+    assert_eq!(back.lfd, s.lfd);
     assert_eq!(back.mesh_hash, s.mesh_hash);
     assert_eq!(back.params, s.params);
     assert_eq!(back.features.len(), s.features.len());
@@ -136,4 +149,55 @@ fn binary_form_round_trips_compactly_and_refuses_garbage() {
 
     let json = serde_json::to_string(&s).unwrap();
     assert_eq!(serde_json::from_str::<Signature>(&json).unwrap(), s);
+}
+
+#[test]
+fn format_1_signatures_read_without_a_light_field_descriptor() {
+    let s = signature(&shapes::cone(0.5, 12, 24));
+    assert!(s.lfd.is_some());
+    // Format 1 was the record alone; format 2 appends the optional descriptor.
+    let mut v1 = Signature {
+        lfd: None,
+        ..s.clone()
+    }
+    .to_bytes();
+    assert_eq!(v1.pop(), Some(0), "`None` is one zero byte");
+    v1[4..6].copy_from_slice(&1u16.to_le_bytes());
+    let old = Signature::from_bytes(&v1).unwrap();
+    assert_eq!(old.lfd, None);
+    assert_eq!(old.features.len(), s.features.len());
+    // Trailing bytes in a format-1 record, or a descriptor with images missing, are corrupt.
+    let mut trailing = v1.clone();
+    trailing.push(7);
+    assert!(matches!(
+        Signature::from_bytes(&trailing),
+        Err(Error::CorruptSignature { .. })
+    ));
+    let mut json = serde_json::to_value(&s).unwrap();
+    json["lfd"].as_array_mut().unwrap().pop();
+    let error = serde_json::from_value::<Signature>(json.clone()).unwrap_err();
+    assert!(error.to_string().contains("100 images"), "{error}");
+    let mut short = Signature {
+        lfd: None,
+        ..s.clone()
+    }
+    .to_bytes();
+    short.pop();
+    short.extend(postcard_descriptor(&json));
+    assert!(matches!(
+        Signature::from_bytes(&short),
+        Err(Error::CorruptSignature { .. })
+    ));
+}
+
+/// `Some(descriptor)` in postcard, with the images the JSON holds.
+fn postcard_descriptor(json: &serde_json::Value) -> Vec<u8> {
+    let images = json["lfd"].as_array().unwrap();
+    let mut bytes = vec![1, images.len() as u8];
+    for image in images {
+        let coefficients = image.as_array().unwrap();
+        bytes.push(coefficients.len() as u8);
+        bytes.extend(coefficients.iter().map(|c| c.as_u64().unwrap() as u8));
+    }
+    bytes
 }

@@ -11,8 +11,11 @@ cargo build --release --manifest-path "$repo/Cargo.toml"
 salient="nice -n 19 $repo/target/release/salient"
 cd "$data" # relative collection paths in the reports
 for set in shrec07-watertight capod; do
-    $salient eval retrieval "$set" --cache-dir "$cache/$set" --out "$out/$set"
-    gzip -9nf "$out/$set"/distances-*.csv
+    # The paper's Fig. 14 comparison, then SPEC's ECC against the paper read literally.
+    $salient eval retrieval "$set" --methods ecc,d2,lfd --cache-dir "$cache/$set" --out "$out/$set"
+    $salient eval retrieval "$set" --methods ecc,ecc-paper --cache-dir "$cache/$set" \
+        --out "$out/ecc-paper-$set"
+    gzip -9nf "$out/$set"/distances-*.csv "$out/ecc-paper-$set"/distances-*.csv
     $salient eval study "$set" --cache-dir "$cache/$set" --out "$out/study-$set"
 done
 for mesh in shrec07-watertight/ant/81.off shrec07-watertight/teddy/171.off \

@@ -81,7 +81,7 @@ impl App {
     pub fn new(config: Config, store: Arc<dyn Store>) -> Result<Self, StartError> {
         let mut records = BTreeMap::new();
         let mut index = Index::new(config.params.similarity.clone());
-        let mut stale = 0;
+        let (mut stale, mut without_lfd) = (0, 0);
         for loaded in store.load_all()? {
             let id = loaded.record.id.clone();
             let signature = Signature::from_bytes(&loaded.signature).map_err(|source| {
@@ -94,11 +94,17 @@ impl App {
             if (&p.mesh, &p.ecc, &p.salient, &p.d2) != (&c.mesh, &c.ecc, &c.salient, &c.d2) {
                 stale += 1;
             }
+            if signature.lfd.is_none() {
+                without_lfd += 1;
+            }
             index.insert(id.clone(), signature);
             records.insert(id, loaded.record);
         }
         if stale > 0 {
             tracing::warn!(stale, "models were extracted with other parameters than configured; run `salient reindex`");
+        }
+        if without_lfd > 0 {
+            tracing::warn!(without_lfd, "models were stored before the light field descriptor and are left out of `lfd` searches; run `salient reindex`");
         }
         let pool = Pool::new(
             config.workers,

@@ -21,8 +21,9 @@ pub struct SearchQuery {
     /// Number of results (default 10; at most the server's `max_k`, 1000 by default).
     #[param(minimum = 1)]
     pub k: Option<usize>,
-    /// `ecc` (salient features, penalised EMD; default) or `d2` (global shape distribution).
-    #[param(value_type = Option<String>, pattern = "^(ecc|d2)$")]
+    /// `ecc` (salient features, penalised EMD; default), `d2` (global shape distribution) or
+    /// `lfd` (Light Field Descriptor).
+    #[param(value_type = Option<String>, pattern = "^(ecc|d2|lfd)$")]
     pub method: Option<Method>,
     /// Weight `W` of the ECC distance against the region D2 distance, in [0, 1]. A value other
     /// than the configured one ranks without the bound-based pruning, so it is slower.
@@ -40,7 +41,8 @@ pub struct SearchHit {
     pub name: Option<String>,
     pub tags: Vec<String>,
     pub class: Option<String>,
-    /// Lower is more similar (`SIM` of SPEC §5, or the D2 distance).
+    /// Lower is more similar (`SIM` of SPEC §5, the D2 distance, or the LFD distance in
+    /// [0, 1]).
     pub distance: f64,
 }
 
@@ -193,7 +195,8 @@ pub async fn search(
     responses(
         (status = 200, description = "Ranked models", body = SearchResponse),
         (status = 400, description = "Bad id or query", body = ErrorBody),
-        (status = 404, description = "No such model", body = ErrorBody)
+        (status = 404, description = "No such model", body = ErrorBody),
+        (status = 409, description = "The model's signature predates the method's descriptor (run `salient reindex`)", body = ErrorBody)
     )
 )]
 pub async fn similar(
@@ -214,6 +217,12 @@ pub async fn similar(
         .get(&id)
         .cloned()
         .ok_or_else(|| AppError::NotFound(format!("no model {id:?}")))?;
+    let method = q.method.unwrap_or_default();
+    if !method.comparable(&signature) {
+        return Err(AppError::Conflict(format!(
+            "model {id:?} was stored without the {method} descriptor; run `salient reindex`"
+        )));
+    }
     rank(&state, signature, q, Some(id), clock, 0.0).await
 }
 

@@ -60,8 +60,8 @@ struct RobustnessArgs {
 struct RetrievalArgs {
     /// The labelled collection.
     dir: PathBuf,
-    /// Methods to compare: ecc, d2, ecc-paper.
-    #[arg(long, value_delimiter = ',', default_value = "ecc,d2,ecc-paper")]
+    /// Methods to compare: ecc, d2, lfd (the paper's comparison, Fig. 14) and ecc-paper.
+    #[arg(long, value_delimiter = ',', default_value = "ecc,d2,lfd")]
     methods: Vec<EvalMethod>,
     /// Where report.json, report.md, pr.png, pr.svg and the distance matrices go.
     #[arg(long, default_value = "salient-report")]

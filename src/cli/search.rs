@@ -1,4 +1,4 @@
-//! `salient search QUERY COLLECTION_DIR [-k 10] [--method ecc|d2] [--json]`.
+//! `salient search QUERY COLLECTION_DIR [-k 10] [--method ecc|d2|lfd] [--json]`.
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -20,7 +20,8 @@ pub struct Args {
     /// How many results.
     #[arg(short, default_value_t = 10)]
     k: usize,
-    /// ecc (salient features, penalised EMD) or d2 (global shape distribution baseline).
+    /// ecc (salient features, penalised EMD), d2 (global shape distribution baseline) or lfd
+    /// (Light Field Descriptor baseline).
     #[arg(long, default_value = "ecc")]
     method: Method,
     /// Print JSON.

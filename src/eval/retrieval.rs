@@ -30,23 +30,31 @@ pub enum EvalMethod {
     D2,
     /// Salient features with [`Params::paper`]: the paper read literally.
     EccPaper,
+    /// The Light Field Descriptor baseline (SPEC §6), from the same signatures.
+    Lfd,
 }
 
 impl EvalMethod {
-    pub const ALL: [EvalMethod; 3] = [EvalMethod::Ecc, EvalMethod::D2, EvalMethod::EccPaper];
+    pub const ALL: [EvalMethod; 4] = [
+        EvalMethod::Ecc,
+        EvalMethod::D2,
+        EvalMethod::EccPaper,
+        EvalMethod::Lfd,
+    ];
 
     pub fn name(self) -> &'static str {
         match self {
             EvalMethod::Ecc => "ecc",
             EvalMethod::D2 => "d2",
             EvalMethod::EccPaper => "ecc-paper",
+            EvalMethod::Lfd => "lfd",
         }
     }
 
     /// The extraction parameters: `base` (the user's, by default SPEC's), or the paper's.
     pub fn params(self, base: &Params) -> Params {
         match self {
-            EvalMethod::Ecc | EvalMethod::D2 => base.clone(),
+            EvalMethod::Ecc | EvalMethod::D2 | EvalMethod::Lfd => base.clone(),
             EvalMethod::EccPaper => Params::paper(),
         }
     }
@@ -56,6 +64,7 @@ impl EvalMethod {
         match self {
             EvalMethod::Ecc | EvalMethod::EccPaper => Method::Ecc,
             EvalMethod::D2 => Method::D2,
+            EvalMethod::Lfd => Method::Lfd,
         }
     }
 }
@@ -72,7 +81,7 @@ impl FromStr for EvalMethod {
         Self::ALL
             .into_iter()
             .find(|m| m.name().eq_ignore_ascii_case(s))
-            .ok_or_else(|| format!("unknown method `{s}` (expected ecc, d2 or ecc-paper)"))
+            .ok_or_else(|| format!("unknown method `{s}` (expected ecc, d2, ecc-paper or lfd)"))
     }
 }
 
@@ -381,7 +390,7 @@ pub fn run(
         let matrix_seconds = clock.elapsed().as_secs_f64();
         let features_per_class = match method.rank() {
             Method::Ecc => feature_counts(collection, signatures),
-            Method::D2 => BTreeMap::new(),
+            Method::D2 | Method::Lfd => BTreeMap::new(),
         };
         results.push(MethodResult {
             method,

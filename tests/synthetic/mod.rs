@@ -75,6 +75,7 @@ pub fn collection(count: usize, classes: usize, seed: u64) -> Vec<(String, Signa
                 mesh_hash: format!("{i:064x}"),
                 features,
                 d2: histogram(&mut rng, 64),
+                lfd: None,
                 params: Params::default(),
                 stats: Default::default(),
             };

@@ -1,0 +1,239 @@
+//! Where the light field's cameras stand (Chen et al. 2003, §3.1): on the 20 vertices of a
+//! regular dodecahedron around the model, ten fixed turns of that camera system, and the 60
+//! rotations of the dodecahedron that carry one system's cameras onto its own.
+//!
+//! An orthographic view from a vertex and from the opposite vertex shows mirror silhouettes,
+//! whose (mirror-invariant) features are equal, so a camera system has 10 distinct views: one
+//! per *axis* through two opposite vertices.
+
+use std::sync::OnceLock;
+
+use glam::{DMat3, DQuat, DVec3};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+
+/// Distinct views of one camera system (20 vertices, opposite ones paired).
+pub const VIEWS: usize = 10;
+/// Camera systems (light fields) per model.
+pub const LIGHT_FIELDS: usize = 10;
+/// Rotations of the dodecahedron (the icosahedral group).
+pub const ROTATIONS: usize = 60;
+
+/// The camera geometry, computed once.
+#[derive(Debug)]
+pub struct Cameras {
+    /// Unit view directions of the base system, one per axis.
+    pub axes: [DVec3; VIEWS],
+    /// The dodecahedron's rotations as matrices (identity first).
+    pub rotations: Vec<DMat3>,
+    /// For each rotation, the axis each axis is carried to: view `v` of one light field is
+    /// compared with view `permutations[r][v]` of the other.
+    pub permutations: Vec<[u8; VIEWS]>,
+    /// The turns of the camera system that make the ten light fields (identity first).
+    pub systems: [DMat3; LIGHT_FIELDS],
+}
+
+impl Cameras {
+    /// The shared instance.
+    pub fn get() -> &'static Cameras {
+        static CAMERAS: OnceLock<Cameras> = OnceLock::new();
+        CAMERAS.get_or_init(Cameras::build)
+    }
+
+    /// View direction of view `view` of light field `system`.
+    pub fn direction(&self, system: usize, view: usize) -> DVec3 {
+        self.systems[system] * self.axes[view]
+    }
+
+    fn build() -> Self {
+        let vertices = dodecahedron();
+        let axes = axes(&vertices);
+        let rotations = rotations(&vertices);
+        let permutations = rotations
+            .iter()
+            .map(|r| {
+                axes.map(|a| {
+                    let image = *r * a;
+                    axis_index(&axes, image).expect("a symmetry maps axes to axes") as u8
+                })
+            })
+            .collect();
+        let systems = spread_systems(&axes);
+        Self {
+            axes,
+            rotations,
+            permutations,
+            systems,
+        }
+    }
+
+    /// The smallest angle (radians) between two of the 100 view axes of all light fields: how
+    /// evenly the ten camera systems cover the directions.
+    pub fn min_axis_angle(&self) -> f64 {
+        let all: Vec<DVec3> = (0..LIGHT_FIELDS)
+            .flat_map(|s| (0..VIEWS).map(move |v| (s, v)))
+            .map(|(s, v)| self.direction(s, v))
+            .collect();
+        let mut largest_cos: f64 = 0.0;
+        for (i, a) in all.iter().enumerate() {
+            for b in &all[i + 1..] {
+                largest_cos = largest_cos.max(a.dot(*b).abs());
+            }
+        }
+        largest_cos.min(1.0).acos()
+    }
+}
+
+/// The 20 vertices of a regular dodecahedron, on the unit sphere.
+pub fn dodecahedron() -> Vec<DVec3> {
+    let phi = (1.0 + 5f64.sqrt()) / 2.0;
+    let inv = 1.0 / phi;
+    let mut vertices = Vec::with_capacity(20);
+    for sx in [-1.0, 1.0] {
+        for sy in [-1.0, 1.0] {
+            vertices.push(DVec3::new(sx, sy, -1.0));
+            vertices.push(DVec3::new(sx, sy, 1.0));
+            vertices.push(DVec3::new(0.0, sx * inv, sy * phi));
+            vertices.push(DVec3::new(sx * inv, sy * phi, 0.0));
+            vertices.push(DVec3::new(sx * phi, 0.0, sy * inv));
+        }
+    }
+    vertices.into_iter().map(DVec3::normalize).collect()
+}
+
+/// One representative of each pair of opposite vertices, in vertex order.
+fn axes(vertices: &[DVec3]) -> [DVec3; VIEWS] {
+    let mut axes = Vec::with_capacity(VIEWS);
+    for &v in vertices {
+        if axis_index(&axes, v).is_none() {
+            axes.push(v);
+        }
+    }
+    axes.try_into().expect("a dodecahedron has 10 axes")
+}
+
+/// The axis through `direction` (either sign), if there is one.
+fn axis_index(axes: &[DVec3], direction: DVec3) -> Option<usize> {
+    axes.iter()
+        .position(|a| a.dot(direction).abs() > 1.0 - 1e-9)
+}
+
+/// All 60 rotations mapping the dodecahedron onto itself: the group acts simply transitively
+/// on directed edges, so there is exactly one carrying a fixed edge `(v₀, n₀)` to each of the
+/// 60 directed edges `(w, w')`.
+fn rotations(vertices: &[DVec3]) -> Vec<DMat3> {
+    let edge = vertices
+        .iter()
+        .map(|v| vertices[0].distance(*v))
+        .filter(|&d| d > 1e-9)
+        .fold(f64::INFINITY, f64::min);
+    let neighbours = |i: usize| {
+        (0..vertices.len())
+            .filter(move |&j| (vertices[i].distance(vertices[j]) - edge).abs() < 1e-9)
+    };
+    let frame = |a: DVec3, b: DVec3| {
+        let b = (b - a * a.dot(b)).normalize();
+        DMat3::from_cols(a, b, a.cross(b))
+    };
+    let n0 = neighbours(0).next().expect("a vertex has neighbours");
+    let base = frame(vertices[0], vertices[n0]).transpose();
+    let mut rotations: Vec<DMat3> = (0..vertices.len())
+        .flat_map(|w| neighbours(w).map(move |n| (w, n)))
+        .map(|(w, n)| frame(vertices[w], vertices[n]) * base)
+        .collect();
+    // Identity first, so that light fields compared view for view are rotation 0.
+    let identity = rotations
+        .iter()
+        .position(|r| r.abs_diff_eq(DMat3::IDENTITY, 1e-9))
+        .expect("the identity maps edge 0 to itself");
+    rotations.swap(0, identity);
+    rotations
+}
+
+/// Candidate turns drawn for each camera system after the first.
+const CANDIDATES: usize = 2000;
+/// Rounds of replacing one system by a better candidate.
+const REFINEMENTS: usize = 4;
+/// Seed of the candidate turns: the camera systems are part of the descriptor's definition.
+const SEED: u64 = 0x1f0d_2003;
+
+/// Ten turns of the camera system spread so that no two of the 100 view axes are close
+/// (Chen et al. use ten "evenly distributed" rotations): greedily, each next turn is the
+/// candidate whose axes stay farthest from all axes placed so far; then each turn in turn is
+/// replaced by the candidate best against all the others while that helps. Candidates are
+/// uniform unit quaternions by rejection sampling, which needs only arithmetic and square
+/// roots, so the systems are bit-identical on every platform.
+fn spread_systems(axes: &[DVec3; VIEWS]) -> [DMat3; LIGHT_FIELDS] {
+    let mut rng = ChaCha8Rng::seed_from_u64(SEED);
+    let candidates: Vec<DMat3> = std::iter::repeat_with(|| {
+        let q = DQuat::from_xyzw(
+            rng.gen_range(-1.0..1.0),
+            rng.gen_range(-1.0..1.0),
+            rng.gen_range(-1.0..1.0),
+            rng.gen_range(-1.0..1.0),
+        );
+        let norm = q.length_squared();
+        (norm > 1e-6 && norm <= 1.0).then(|| DMat3::from_quat(q.normalize()))
+    })
+    .flatten()
+    .take(CANDIDATES)
+    .collect();
+    let best_against = |others: &[DMat3]| {
+        candidates
+            .iter()
+            .map(|r| (closeness(axes, others, r), *r))
+            .min_by(|a, b| a.0.total_cmp(&b.0))
+            .expect("there are candidates")
+    };
+    let mut systems = vec![DMat3::IDENTITY];
+    while systems.len() < LIGHT_FIELDS {
+        systems.push(best_against(&systems).1);
+    }
+    for _ in 0..REFINEMENTS {
+        let mut improved = false;
+        for j in 1..LIGHT_FIELDS {
+            let mut others = systems.clone();
+            let current = others.remove(j);
+            let (close, candidate) = best_against(&others);
+            if close < closeness(axes, &others, &current) {
+                systems[j] = candidate;
+                improved = true;
+            }
+        }
+        if !improved {
+            break;
+        }
+    }
+    systems.try_into().expect("ten systems")
+}
+
+/// The largest `|cos|` between an axis turned by `r` and an axis turned by one of `others`:
+/// smaller is farther apart.
+fn closeness(axes: &[DVec3; VIEWS], others: &[DMat3], r: &DMat3) -> f64 {
+    let mut largest: f64 = 0.0;
+    for a in axes {
+        let a = *r * *a;
+        for o in others {
+            for b in axes {
+                largest = largest.max(a.dot(*o * *b).abs());
+            }
+        }
+    }
+    largest
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn axes_are_ten_distinct_lines() {
+        let cameras = Cameras::get();
+        for (i, a) in cameras.axes.iter().enumerate() {
+            assert!((a.length() - 1.0).abs() < 1e-12);
+            for b in &cameras.axes[i + 1..] {
+                assert!(a.dot(*b).abs() < 0.75, "axes {a} and {b} too close");
+            }
+        }
+    }
+}
