@@ -257,6 +257,17 @@ fn a_rotated_copy_is_near_and_other_shapes_are_far() {
             (d.distance(&copy) - copy.distance(d)).abs() < 1e-15,
             "symmetric"
         );
+        // The ranking bound never exceeds the distance, and is not trivially 0 between shapes.
+        for other in descriptors.iter().chain([&copy]) {
+            let bound = d.summary().lower_bound(&other.summary());
+            assert!(bound <= d.distance(other), "{name}");
+            if other != d && other != &copy {
+                assert!(
+                    bound > 0.2 * d.distance(other),
+                    "{name}: weak bound {bound}"
+                );
+            }
+        }
     }
 }
 

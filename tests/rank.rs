@@ -104,4 +104,17 @@ fn lfd_ranks_by_light_field_distance_and_skips_signatures_without_one() {
     assert_eq!(got, expected);
     assert_eq!(got[0], (0.0, "cone"));
     assert_eq!(ranking.evaluated, 4);
+    // The bound-pruned ranking is the full scan's for every k and query.
+    for (_, query) in &signatures {
+        for k in 1..=4 {
+            let fast = index.search(query, k, Method::Lfd);
+            let full = index.search_exhaustive(query, k, Method::Lfd);
+            assert_eq!(fast.hits, full.hits, "k = {k}");
+            assert_eq!(fast.evaluated + fast.pruned, 4);
+        }
+    }
+    // A query without a descriptor ranks nothing.
+    let mut bare = signatures[0].1.clone();
+    bare.lfd = None;
+    assert!(index.search(&bare, 3, Method::Lfd).hits.is_empty());
 }

@@ -15,6 +15,7 @@ for set in shrec07-watertight capod; do
     $salient eval retrieval "$set" --methods ecc,d2,lfd --cache-dir "$cache/$set" --out "$out/$set"
     $salient eval retrieval "$set" --methods ecc,ecc-paper --cache-dir "$cache/$set" \
         --out "$out/ecc-paper-$set"
+    rm "$out/ecc-paper-$set/distances-ecc.csv" # the same as in "$out/$set"
     gzip -9nf "$out/$set"/distances-*.csv "$out/ecc-paper-$set"/distances-*.csv
     $salient eval study "$set" --cache-dir "$cache/$set" --out "$out/study-$set"
 done

@@ -85,6 +85,13 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             .with_context(|| args.query.display().to_string())?
             .0
     };
+    if !args.method.comparable(&query) {
+        anyhow::bail!(
+            "{}: the query signature has no {} descriptor (made by an older salient); extract it again",
+            args.query.display(),
+            args.method
+        );
+    }
 
     let clock = Instant::now();
     let progress = ProgressBar::new(files.len() as u64).with_style(
