@@ -1,7 +1,7 @@
 //! Load figures of the HTTP service (issue #5), against the real release binary on a loopback
 //! port: ingest throughput of ~7 000-vertex meshes through `salient ingest`, then searches per
 //! second and p50/p99 latency of `GET /v1/models/{id}/similar?k=10` and `POST /v1/search?k=10`
-//! with 1 000 and 10 000 stored models.
+//! with 1 000 and 10 000 stored models, and the server's resident memory after loading them.
 //!
 //! `cargo bench --bench load` (a few minutes on 2 cores). `SALIENT_LOAD_SIZES=1000,10000` and
 //! `SALIENT_LOAD_SECONDS=10` (per similar-search measurement) change the run.
@@ -114,21 +114,25 @@ fn perturbed(signature: &Signature, rng: &mut ChaCha8Rng, amount: f64) -> Signat
         let drop = rng.gen_range(0..s.features.len());
         s.features.remove(drop);
     }
-    let mut jitter = |values: &mut Vec<f64>, normalise: bool| {
-        for v in values.iter_mut() {
-            *v *= 1.0 + rng.gen_range(-amount..amount);
-        }
-        let sum: f64 = values.iter().sum();
-        if normalise && sum > 0.0 {
-            values.iter_mut().for_each(|v| *v /= sum);
-        }
-    };
     for f in &mut s.features {
-        jitter(&mut f.ecc, false);
-        jitter(&mut f.d2, true);
+        f.ecc
+            .iter_mut()
+            .for_each(|a| *a *= 1.0 + rng.gen_range(-amount..amount));
+        jitter_histogram(&mut f.d2, rng, amount);
     }
-    jitter(&mut s.d2, true);
+    jitter_histogram(&mut s.d2, rng, amount);
     s
+}
+
+/// Each bin scaled by up to ±`amount`, then the histogram renormalised.
+fn jitter_histogram(bins: &mut [f32], rng: &mut ChaCha8Rng, amount: f64) {
+    for v in bins.iter_mut() {
+        *v *= (1.0 + rng.gen_range(-amount..amount)) as f32;
+    }
+    let sum: f32 = bins.iter().sum();
+    if sum > 0.0 {
+        bins.iter_mut().for_each(|v| *v /= sum);
+    }
 }
 
 /// Adds models `from..to` to the store at `data`, perturbed copies of the models of `base`.
@@ -136,9 +140,8 @@ fn fill(data: &Path, base: &Path, from: usize, to: usize) {
     let source = SledStore::open(base).expect("the ingested store");
     let models: Vec<_> = source
         .load_all()
-        .expect("loads")
-        .into_iter()
         .map(|loaded| {
+            let loaded = loaded.expect("loads");
             let upload = source
                 .upload(&loaded.record.id)
                 .expect("reads")
@@ -315,6 +318,10 @@ fn main() {
         );
         stored = size;
         let server = Server::start(&data, &[]);
+        eprintln!(
+            "server resident with {size} models: {:.0} MiB",
+            server.resident_mib().unwrap_or(f64::NAN)
+        );
         let url = server.url.clone();
         let (c, u) = (client.clone(), url.clone());
         let run = runtime.block_on(closed_loop(budget, usize::MAX, move |n| {

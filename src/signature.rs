@@ -41,8 +41,9 @@ pub struct Feature {
     pub position_normalized: [f64; 3],
     /// ECC vector, radians (Eq. 5).
     pub ecc: Vec<f64>,
-    /// D2 histogram of the salient region over `[0, 2·D_g]`, sum 1.
-    pub d2: Vec<f64>,
+    /// D2 histogram of the salient region over `[0, 2·D_g]`, sum 1. Single precision: the
+    /// bins are stored to 1/65 535 anyway, and an index of 100 000 models holds millions.
+    pub d2: Vec<f32>,
     /// Final region size `D`, normalised units.
     pub region_size: f64,
     /// Area of the salient region, normalised units.
@@ -65,7 +66,7 @@ pub struct Signature {
     pub mesh_hash: String,
     pub features: Vec<Feature>,
     /// Global D2 histogram of the whole normalised mesh over `[0, 2]` (SPEC §6).
-    pub d2: Vec<f64>,
+    pub d2: Vec<f32>,
     /// Light Field Descriptor (SPEC §6); absent from signatures made before it existed
     /// (format 1), which `salient reindex` renews.
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -192,15 +193,18 @@ struct StoredFeature {
 
 const BIN_SCALE: f64 = 65_535.0;
 
-fn quantise(histogram: &[f64]) -> Vec<u16> {
+fn quantise(histogram: &[f32]) -> Vec<u16> {
     histogram
         .iter()
-        .map(|&h| (h * BIN_SCALE).round().clamp(0.0, BIN_SCALE) as u16)
+        .map(|&h| (h as f64 * BIN_SCALE).round().clamp(0.0, BIN_SCALE) as u16)
         .collect()
 }
 
-fn dequantise(histogram: &[u16]) -> Vec<f64> {
-    histogram.iter().map(|&h| h as f64 / BIN_SCALE).collect()
+fn dequantise(histogram: &[u16]) -> Vec<f32> {
+    histogram
+        .iter()
+        .map(|&h| (h as f64 / BIN_SCALE) as f32)
+        .collect()
 }
 
 impl Signature {

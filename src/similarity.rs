@@ -153,7 +153,7 @@ fn projections(f: &Feature) -> [(f64, f64); 3] {
     let distance =
         f.d2.iter()
             .enumerate()
-            .map(|(k, h)| (2.0 * k as f64 + 1.0 - bins) / bins * h)
+            .map(|(k, &h)| (2.0 * k as f64 + 1.0 - bins) / bins * h as f64)
             .sum::<f64>()
             / 2.0;
     // (ECC part, D2 part) of each projection; the weight W combines them at query time.
@@ -163,16 +163,6 @@ fn projections(f: &Feature) -> [(f64, f64); 3] {
 impl Summary {
     pub fn of(signature: &Signature, params: &SimilarityParams) -> Self {
         let count = signature.features.len();
-        let mean = |get: fn(&Feature) -> &[f64]| {
-            let len = signature.features.first().map_or(0, |f| get(f).len());
-            let mut sum = vec![0.0; len];
-            for f in &signature.features {
-                for (s, x) in sum.iter_mut().zip(get(f)) {
-                    *s += x;
-                }
-            }
-            sum.into_iter().map(|s| s / count.max(1) as f64).collect()
-        };
         let w = params.ecc_weight;
         let per_feature: Vec<[(f64, f64); 3]> =
             signature.features.iter().map(projections).collect();
@@ -196,11 +186,25 @@ impl Summary {
         }
         Self {
             count,
-            ecc_mean: mean(|f| &f.ecc),
-            d2_mean: mean(|f| &f.d2),
+            ecc_mean: mean(&signature.features, |f| &f.ecc),
+            d2_mean: mean(&signature.features, |f| &f.d2),
             projections: projected,
         }
     }
+}
+
+/// The mean over `features` of one of their vectors.
+fn mean<T: Copy + Into<f64>>(features: &[Feature], get: impl Fn(&Feature) -> &[T]) -> Vec<f64> {
+    let len = features.first().map_or(0, |f| get(f).len());
+    let mut sum = vec![0.0; len];
+    for f in features {
+        for (s, &x) in sum.iter_mut().zip(get(f)) {
+            *s += x.into();
+        }
+    }
+    sum.into_iter()
+        .map(|s| s / features.len().max(1) as f64)
+        .collect()
 }
 
 /// A lower bound on [`compare`]'s `sim`, from two facts about the EMD with equal total masses

@@ -28,7 +28,7 @@ fn one_salient_point_on_each_tip_of_a_star() {
         // On a tip: far from the body (radius 0.5) and sharply convex.
         assert!(glam::DVec3::from(f.position).length() > 1.0);
         assert!(f.ecc.iter().sum::<f64>() > 0.0);
-        assert!((f.d2.iter().sum::<f64>() - 1.0).abs() < 1e-9);
+        assert!((f.d2.iter().map(|&h| h as f64).sum::<f64>() - 1.0).abs() < 1e-6);
         assert!(f.region_area > 0.0 && f.region_size > 0.0);
     }
 }
@@ -124,7 +124,7 @@ fn binary_form_round_trips_compactly_and_refuses_garbage() {
             .d2
             .iter()
             .zip(&b.d2)
-            .all(|(x, y)| (x - y).abs() <= 0.5 / 65535.0 + 1e-12));
+            .all(|(x, y)| (x - y).abs() <= 0.5 / 65535.0 + 1e-7));
     }
     // Re-encoding the decoded form is stable.
     assert_eq!(back.to_bytes(), bytes);

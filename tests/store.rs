@@ -74,7 +74,7 @@ fn a_store_from_a_newer_salient_is_refused() {
         db.insert(b"schema_version", &99u32.to_be_bytes()).unwrap();
         db.flush().unwrap();
     }
-    match SledStore::open(dir.path()) {
+    match reopen(dir.path()) {
         Err(StoreError::Incompatible {
             found: 99,
             supported: 1,
@@ -116,9 +116,9 @@ fn files_are_deduplicated_and_released_with_their_last_model() {
     // Reopening finds everything as it was.
     drop(blobs);
     drop(store);
-    let store = SledStore::open(dir.path()).unwrap();
+    let store = reopen(dir.path()).unwrap();
     assert_eq!(store.upload("two").unwrap().unwrap().mesh, b.mesh);
-    assert_eq!(store.load_all().unwrap().len(), 1);
+    assert_eq!(store.load_all().count(), 1);
 }
 
 /// `salient reindex` re-extracts every stored model with new parameters.
@@ -162,8 +162,23 @@ async fn reindex_re_extracts_with_new_parameters() {
     );
     assert!(String::from_utf8_lossy(&out.stdout).contains("re-extracted 2 of 2"));
     let store = SledStore::open(&data).unwrap();
-    for loaded in store.load_all().unwrap() {
+    for loaded in store.load_all() {
+        let loaded = loaded.unwrap();
         let signature = salient::Signature::from_bytes(&loaded.signature).unwrap();
         assert_eq!(signature.params.d2.samples, 500, "{}", loaded.record.id);
     }
+}
+
+/// Opens a store this process had open: sled's flusher thread can hold the file lock for a
+/// moment after the last handle is dropped, so a lock failure is retried for up to 5 s.
+fn reopen(dir: &std::path::Path) -> salient::store::StoreResult<SledStore> {
+    let mut result = SledStore::open(dir);
+    for _ in 0..50 {
+        if !matches!(result, Err(StoreError::Backend(_))) {
+            break;
+        }
+        std::thread::sleep(std::time::Duration::from_millis(100));
+        result = SledStore::open(dir);
+    }
+    result
 }

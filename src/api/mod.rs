@@ -82,7 +82,8 @@ impl App {
         let mut records = BTreeMap::new();
         let mut index = Index::new(config.params.similarity.clone());
         let (mut stale, mut without_lfd) = (0, 0);
-        for loaded in store.load_all()? {
+        for loaded in store.load_all() {
+            let loaded = loaded?;
             let id = loaded.record.id.clone();
             let signature = Signature::from_bytes(&loaded.signature).map_err(|source| {
                 StartError::Signature {

@@ -122,8 +122,9 @@ pub trait Store: Send + Sync {
     fn list(&self, after: Option<&str>, limit: usize) -> StoreResult<Vec<ModelRecord>>;
     /// The id of the model holding an upload with this content hash.
     fn find_content(&self, content_hash: &str) -> StoreResult<Option<String>>;
-    /// Every model with its signature, in id order.
-    fn load_all(&self) -> StoreResult<Vec<Loaded>>;
+    /// Every model with its signature, in id order. Streamed: loading a large store holds one
+    /// model's bytes at a time, not all of them (700 MB at 100 000 models).
+    fn load_all(&self) -> Box<dyn Iterator<Item = StoreResult<Loaded>> + '_>;
     fn len(&self) -> usize;
     fn is_empty(&self) -> bool {
         self.len() == 0

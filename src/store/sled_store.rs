@@ -57,10 +57,18 @@ fn count(bytes: Option<sled::IVec>) -> u64 {
         .map_or(0, u64::from_be_bytes)
 }
 
+/// sled's page cache. The service ranks from its own in-memory index and reads the store for
+/// single records, so sled's default (1 GiB, filled by the start-up scan of every signature)
+/// would only add to the resident size: 2.2 GiB instead of ~1.3 at 100 000 models.
+const CACHE_BYTES: u64 = 64 << 20;
+
 impl SledStore {
     /// Opens (creating if needed) the store in `dir` and brings its schema up to date.
     pub fn open(dir: &Path) -> StoreResult<Self> {
-        let db = sled::open(dir)?;
+        let db = sled::Config::new()
+            .path(dir)
+            .cache_capacity(CACHE_BYTES)
+            .open()?;
         Self::migrate(&db)?;
         Ok(Self {
             models: db.open_tree("models")?,
@@ -299,20 +307,17 @@ impl super::Store for SledStore {
             .map(|id| String::from_utf8_lossy(&id).into_owned()))
     }
 
-    fn load_all(&self) -> StoreResult<Vec<Loaded>> {
-        self.models
-            .iter()
-            .map(|entry| {
-                let (key, value) = entry?;
-                let record = decode_record(&key, &value)?;
-                let signature = self
-                    .signatures
-                    .get(&key)?
-                    .ok_or_else(|| corrupt(&key, "model without signature"))?
-                    .to_vec();
-                Ok(Loaded { record, signature })
-            })
-            .collect()
+    fn load_all(&self) -> Box<dyn Iterator<Item = StoreResult<Loaded>> + '_> {
+        Box::new(self.models.iter().map(|entry| {
+            let (key, value) = entry?;
+            let record = decode_record(&key, &value)?;
+            let signature = self
+                .signatures
+                .get(&key)?
+                .ok_or_else(|| corrupt(&key, "model without signature"))?
+                .to_vec();
+            Ok(Loaded { record, signature })
+        }))
     }
 
     fn len(&self) -> usize {

@@ -7,7 +7,7 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use salient::{Feature, Params, Signature};
 
-fn histogram(rng: &mut ChaCha8Rng, bins: usize) -> Vec<f64> {
+fn histogram(rng: &mut ChaCha8Rng, bins: usize) -> Vec<f32> {
     // Region D2 histograms are unimodal bumps; their position and width vary with the region.
     let centre = rng.gen_range(0.1..0.7) * bins as f64;
     let width = rng.gen_range(0.05..0.2) * bins as f64;
@@ -15,7 +15,7 @@ fn histogram(rng: &mut ChaCha8Rng, bins: usize) -> Vec<f64> {
         .map(|k| (-((k as f64 - centre) / width).powi(2)).exp() + 1e-3)
         .collect();
     let sum: f64 = raw.iter().sum();
-    raw.into_iter().map(|x| x / sum).collect()
+    raw.into_iter().map(|x| (x / sum) as f32).collect()
 }
 
 fn feature(rng: &mut ChaCha8Rng) -> Feature {
@@ -41,10 +41,10 @@ fn jitter(rng: &mut ChaCha8Rng, f: &Feature, amount: f64) -> Feature {
     }
     let raw: Vec<f64> =
         g.d2.iter()
-            .map(|h| (h * (1.0 + rng.gen_range(-amount..amount))).max(0.0))
+            .map(|&h| (h as f64 * (1.0 + rng.gen_range(-amount..amount))).max(0.0))
             .collect();
     let sum: f64 = raw.iter().sum();
-    g.d2 = raw.into_iter().map(|x| x / sum).collect();
+    g.d2 = raw.into_iter().map(|x| (x / sum) as f32).collect();
     g
 }
 
