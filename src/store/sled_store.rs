@@ -59,7 +59,8 @@ fn count(bytes: Option<sled::IVec>) -> u64 {
 
 /// sled's page cache. The service ranks from its own in-memory index and reads the store for
 /// single records, so sled's default (1 GiB, filled by the start-up scan of every signature)
-/// would only add to the resident size: 2.2 GiB instead of ~1.3 at 100 000 models.
+/// would only add to the resident size (measured at 100 000 models: 2 215 MiB with it, 1 904
+/// MiB with this cap).
 const CACHE_BYTES: u64 = 64 << 20;
 
 impl SledStore {
