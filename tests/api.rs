@@ -707,7 +707,8 @@ async fn search_similar_and_extract() {
 }
 
 /// A model stored before signatures carried the light field descriptor (format 1) is left
-/// out of `lfd` rankings, and asking for its `lfd` neighbours is a 409 that names the fix.
+/// out of `lfd` rankings, and asking for its `lfd` neighbours is a 409 that names the fix,
+/// `salient reindex`, which works.
 #[tokio::test]
 async fn models_stored_without_a_light_field_descriptor() {
     use salient::store::{SledStore, Store};
@@ -777,6 +778,29 @@ async fn models_stored_without_a_light_field_descriptor() {
         "missing_descriptor",
     )
     .await;
+
+    // The fix the message names: `salient reindex` gives every model its descriptor.
+    let mut server = server;
+    server.kill();
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_salient"))
+        .args(["reindex", "--data", data.to_str().unwrap()])
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let server = Server::start(&data, &[]);
+    let ranked = json(
+        client
+            .get(server.at("/v1/models/old/similar?method=lfd"))
+            .send()
+            .await
+            .unwrap(),
+    )
+    .await;
+    assert_eq!(ranked["results"][0]["id"], "new", "{ranked}");
 }
 
 #[tokio::test]
