@@ -8,8 +8,8 @@
 use std::path::PathBuf;
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
-use salient::extract::extract;
 use salient::mesh::load_path;
+use salient::pipeline::extract;
 use salient::{Limits, Params};
 
 fn mesh_path() -> PathBuf {

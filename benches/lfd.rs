@@ -8,7 +8,7 @@
 //! coefficient moved by up to ±6 quantisation steps — 180 tight classes, a favourable case for
 //! the pruning bound, so the report also gives the fraction pruned.
 
-#[path = "../tests/synthetic/mod.rs"]
+#[path = "../tests/it/synthetic.rs"]
 mod synthetic;
 
 use std::path::PathBuf;

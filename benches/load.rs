@@ -12,7 +12,7 @@
 //! the library (`Store::put`) with the signatures of the ingested meshes, each copy perturbed
 //! so that no two stored models are equal, then served by a fresh server.
 
-#[path = "../tests/server/mod.rs"]
+#[path = "../tests/it/server.rs"]
 mod server;
 
 use std::f64::consts::PI;
@@ -143,7 +143,7 @@ fn fill(data: &Path, base: &Path, from: usize, to: usize) {
         .map(|loaded| {
             let loaded = loaded.expect("loads");
             let upload = source
-                .upload(&loaded.record.id)
+                .upload(loaded.record.id.as_str())
                 .expect("reads")
                 .expect("stored");
             let signature = Signature::from_bytes(&loaded.signature).expect("decodes");
@@ -156,7 +156,7 @@ fn fill(data: &Path, base: &Path, from: usize, to: usize) {
     for i in from..to {
         let (record, signature, upload) = &models[i % models.len()];
         let mut record = record.clone();
-        record.id = format!("m{i:05}");
+        record.id = salient::model::ModelId::parse(&format!("m{i:05}")).expect("a valid id");
         record.tags = vec![format!("t{}", i % 10)];
         let bytes = perturbed(signature, &mut rng, 0.15).to_bytes();
         store.put(&record, &bytes, upload).expect("stores");

@@ -2,7 +2,7 @@
 //! 2 cores). `cargo bench --bench rank`. Signatures are synthetic (tests/synthetic): class
 //! prototypes of smooth ECC curves and unimodal region D2 histograms, members perturbed.
 
-#[path = "../tests/synthetic/mod.rs"]
+#[path = "../tests/it/synthetic.rs"]
 mod synthetic;
 
 use std::time::Instant;

@@ -1,17 +1,27 @@
 //! Ordered store migrations, applied at open (see README.md in this folder).
 
 mod v0001_initial;
+mod v0002_signature_format3;
+
+use crate::store::StoreResult;
 
 /// One step of the store's schema.
 pub struct Migration {
     pub version: u32,
     pub name: &'static str,
-    pub apply: fn(&sled::Db) -> sled::Result<()>,
+    pub apply: fn(&sled::Db) -> StoreResult<()>,
 }
 
 /// Every migration, in version order; the last version is the schema the code writes.
-pub const MIGRATIONS: &[Migration] = &[Migration {
-    version: 1,
-    name: "initial layout",
-    apply: v0001_initial::apply,
-}];
+pub const MIGRATIONS: &[Migration] = &[
+    Migration {
+        version: 1,
+        name: "initial layout",
+        apply: v0001_initial::apply,
+    },
+    Migration {
+        version: 2,
+        name: "signature format 3, state tree",
+        apply: v0002_signature_format3::apply,
+    },
+];

@@ -6,7 +6,7 @@
 //! - `blob_refs`: SHA-256 → number of models using the blob (u64, big endian)
 //! - `content`: content hash of an upload → id of the model holding it
 
-pub fn apply(db: &sled::Db) -> sled::Result<()> {
+pub fn apply(db: &sled::Db) -> crate::store::StoreResult<()> {
     for tree in ["models", "signatures", "blobs", "blob_refs", "content"] {
         db.open_tree(tree)?;
     }

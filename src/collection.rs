@@ -6,10 +6,10 @@ use std::path::{Path, PathBuf};
 
 use sha2::{Digest, Sha256};
 
-use crate::extract::extract_path;
 use crate::mesh::Format;
 use crate::params::{Limits, Params};
-use crate::signature::{describe, hex, Signature, SIGNATURE_FORMAT};
+use crate::pipeline::{describe, extract_path};
+use crate::signature::{Signature, SIGNATURE_FORMAT};
 use crate::{Error, Result};
 
 /// Name of the cache folder [`SignatureCache::beside`] creates in a collection.
@@ -119,7 +119,8 @@ impl SignatureCache {
         hasher.update(bytes);
         hasher.update(&self.params_key);
         hasher.update(SIGNATURE_FORMAT.to_le_bytes());
-        self.dir.join(format!("{}.sig", hex(&hasher.finalize())))
+        self.dir
+            .join(format!("{}.sig", hex::encode(hasher.finalize())))
     }
 }
 

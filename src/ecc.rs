@@ -72,6 +72,7 @@ enum Outcome {
 
 /// Counts per outcome and per reason, plus per-stage timings.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
 pub struct EccStats {
     pub vertices: usize,
     /// Vertices whose `N` waves were all valid at `D_g`.
@@ -95,6 +96,7 @@ pub struct EccStats {
 
 /// One counter per [`WaveDefect`].
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(default)]
 pub struct DefectCounts {
     pub missing: usize,
     pub branching: usize,

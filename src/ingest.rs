@@ -9,11 +9,8 @@ use std::time::Duration;
 use crate::collection::find_meshes;
 use crate::mesh::load::DirResources;
 use crate::mesh::{Format, Resources};
-use crate::store::{sha256_hex, Upload};
+use crate::model::{sha256_hex, ModelId, Upload, MAX_ID_LEN};
 use crate::{Error, Result};
-
-/// Longest model id the service accepts (`api::upload::check_id`).
-pub const MAX_ID_LEN: usize = 128;
 
 /// One file of the folder and the model it becomes.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -101,13 +98,7 @@ pub fn model_id(relative: &Path) -> String {
     let joined: String = parts
         .join("-")
         .chars()
-        .map(|c| {
-            if c.is_ascii_alphanumeric() || matches!(c, '.' | '_' | '-') {
-                c
-            } else {
-                '_'
-            }
-        })
+        .map(|c| if ModelId::allowed(c) { c } else { '_' })
         .collect();
     let id = joined.trim_start_matches('.');
     if id.is_empty() {
@@ -134,18 +125,14 @@ pub fn read_upload(item: &Item) -> Result<Upload> {
         for (uri, required) in gltf_references(&mesh)? {
             match folder.get(&uri) {
                 Some(bytes) => {
-                    resources.insert(uri, bytes);
+                    resources.insert(uri, bytes.into());
                 }
                 None if required => return Err(Error::MissingResource { uri }),
                 None => {}
             }
         }
     }
-    Ok(Upload {
-        format: item.format,
-        mesh,
-        resources,
-    })
+    Ok(Upload::new(item.format, mesh.into(), resources))
 }
 
 /// The external files a glTF document references, percent-decoded, with whether the geometry
@@ -237,10 +224,7 @@ mod tests {
         assert_eq!(id.len(), MAX_ID_LEN);
         assert_ne!(id, model_id(Path::new(&long.replace(".stl", "g.stl"))));
         for id in [id, model_id(Path::new(".obj"))] {
-            assert!(!id.is_empty() && !id.starts_with('.'), "{id}");
-            assert!(id
-                .bytes()
-                .all(|b| b.is_ascii_alphanumeric() || b"._-".contains(&b)));
+            assert!(ModelId::parse(&id).is_ok(), "{id}");
         }
     }
 

@@ -5,40 +5,52 @@
 //! - [`geodesic`]: local Dijkstra geodesics bounded by `D_g` (§2.1);
 //! - [`waves`]: geodesic iso-lines traced into closed loops, their validity (§2.2–2.3);
 //! - [`ecc`]: the extended cone-curvature vector of every vertex (§2.4);
-//! - [`extract`]: the pipeline from a loaded mesh to per-vertex ECC, with statistics;
 //! - [`salient`]: k-means candidates, non-maximum suppression, salient regions (§3);
 //! - [`descriptor`]: D2 shape distributions of regions and whole meshes (§4, §6), and the
 //!   Light Field Descriptor baseline (§6);
-//! - [`signature`]: a model's features, parameters and statistics; JSON and binary (§4);
+//! - [`pipeline`]: load → prepare → ECC → salient features → descriptors → signature, with
+//!   statistics and timings;
+//! - [`signature`]: a model's features, descriptors, parameters and statistics; JSON and the
+//!   versioned binary form (§4), and the rule for when a stored one is stale;
 //! - [`emd`]: exact Earth Mover's Distance by the transportation simplex (§5);
 //! - [`similarity`]: ground distance, penalised EMD, D2 baseline distance, lower bound (§5–6);
 //! - [`rank`]: top-k ranking of an in-memory collection with bound-based pruning;
 //! - [`collection`]: mesh folders and a disk cache of their signatures;
-//! - [`store`]: persistent models, signatures and original files (sled);
-//! - [`api`]: the HTTP service (SPEC §8);
-//! - [`ingest`]: planning a bulk upload of a mesh folder to the service (`salient ingest`).
-//! - [`eval`]: the evaluation protocol — retrieval measures, robustness, parameter study (§7);
+//! - [`model`]: model ids, records and uploaded files (feature `server`);
+//! - [`store`]: persistent models, signatures and original files: sled, or in memory
+//!   (feature `server`);
+//! - [`api`]: the HTTP service (SPEC §8), with online re-extraction (feature `server`);
+//! - [`ingest`]: planning a bulk upload of a mesh folder to the service (`salient ingest`;
+//!   feature `server`);
+//! - [`eval`]: the evaluation protocol — retrieval measures, robustness, parameter study
+//!   (§7; feature `eval`);
 //! - [`render`]: pictures of a mesh with its salient points and regions (paper Fig. 10);
 //! - [`raster`]: triangle scan conversion shared by pictures and silhouettes.
 
+#[cfg(feature = "server")]
 pub mod api;
 pub mod collection;
 pub mod descriptor;
 pub mod ecc;
 pub mod emd;
 pub mod error;
+#[cfg(feature = "eval")]
 pub mod eval;
-pub mod extract;
 pub mod geodesic;
+#[cfg(feature = "server")]
 pub mod ingest;
 pub mod mesh;
+#[cfg(feature = "server")]
+pub mod model;
 pub mod params;
+pub mod pipeline;
 pub mod rank;
 pub mod raster;
 pub mod render;
 pub mod salient;
 pub mod signature;
 pub mod similarity;
+#[cfg(feature = "server")]
 pub mod store;
 pub mod waves;
 

@@ -1,13 +1,27 @@
-//! Extraction parameters with the SPEC's defaults. They are serialised with every signature,
-//! so a stored signature always says how it was made; [`PARAMS_VERSION`] changes whenever a
-//! default or the meaning of a field changes (that means re-extraction, not a store migration).
+//! Parameters with the SPEC's defaults. They are serialised with every signature, so a stored
+//! signature always says how it was made.
+//!
+//! Two kinds, and the difference matters to every stored model:
+//! - **extraction** parameters (`mesh`, `ecc`, `salient`, `d2`) and [`PARAMS_VERSION`] make
+//!   the signature; changing one makes stored signatures stale, and they are re-extracted
+//!   ([`crate::signature::Staleness`]);
+//! - **ranking** parameters (`similarity`: `W`, the penalty, and later weights, scales and
+//!   thresholds) only compare signatures; they are read from the configuration at query time
+//!   and never make a signature stale.
+//!
+//! [`PARAMS_VERSION`] changes whenever a default or the meaning of an extraction field, or the
+//! extraction itself (the weld, a new descriptor), changes: that means re-extraction, not a
+//! store migration (`migrations/README.md`).
 
 use serde::{Deserialize, Serialize};
 
 use crate::{Error, Result};
 
 /// Version of the parameter set and of the extraction algorithm's semantics.
-pub const PARAMS_VERSION: u32 = 1;
+///
+/// - 1: release 0.1.0.
+/// - 2: the weld merges every pair of vertices within the tolerance, across grid cells.
+pub const PARAMS_VERSION: u32 = 2;
 
 /// All parameters that influence a signature.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -36,6 +50,19 @@ impl Default for Params {
 }
 
 impl Params {
+    /// Whether signatures made with `self` and `other` are the same: the same extraction
+    /// version and extraction parameters. Ranking parameters are ignored (module docs).
+    pub fn same_extraction(&self, other: &Params) -> bool {
+        (self.version, &self.mesh, &self.ecc, &self.salient, &self.d2)
+            == (
+                other.version,
+                &other.mesh,
+                &other.ecc,
+                &other.salient,
+                &other.d2,
+            )
+    }
+
     /// The paper read literally, where SPEC resolves it otherwise: Definition 3's cone height
     /// ([`HeightRule::Paper`], SPEC §2.4), the candidate cluster of largest norm
     /// ([`CandidateRule::Norm`], §3.1), the area filter on regions ([`RegionRule::Area`],
@@ -55,6 +82,11 @@ impl Params {
     pub fn validate(&self) -> Result<()> {
         let (m, e, s) = (&self.mesh, &self.ecc, &self.salient);
         let checks = [
+            (
+                self.version == PARAMS_VERSION,
+                "version",
+                "must be this release's extraction version (leave it out)",
+            ),
             (
                 m.weld_tolerance > 0.0 && m.weld_tolerance < 0.1,
                 "mesh.weld_tolerance",
@@ -123,8 +155,7 @@ impl Params {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct MeshParams {
-    /// Vertices with positions equal after quantisation to this fraction of the bounding-box
-    /// diagonal are merged (SPEC §1.2).
+    /// Vertices closer than this fraction of the bounding-box diagonal are merged (SPEC §1.2).
     pub weld_tolerance: f64,
     /// Meshes with more welded vertices are simplified to this count (SPEC §1.5).
     pub max_vertices: usize,
@@ -191,6 +222,17 @@ impl Default for Limits {
         Self {
             max_input_vertices: 5_000_000,
             max_input_triangles: 10_000_000,
+        }
+    }
+}
+
+impl Limits {
+    /// No limit: for re-extracting originals that were accepted under the limits of their
+    /// upload.
+    pub fn unlimited() -> Self {
+        Self {
+            max_input_vertices: usize::MAX,
+            max_input_triangles: usize::MAX,
         }
     }
 }

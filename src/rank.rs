@@ -8,9 +8,9 @@
 //! full scan. The LFD method is ranked the same way with its own bound
 //! ([`crate::descriptor::lfd::LfdSummary`]).
 
-use std::collections::HashMap;
 use std::fmt;
 use std::str::FromStr;
+use std::sync::Arc;
 
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -97,18 +97,19 @@ pub struct Ranking {
 /// An in-memory collection of signatures with what ranking precomputes for each.
 ///
 /// Summaries for the lower bound depend on the ground-distance weight `W`, so an index is
-/// built for one [`SimilarityParams`].
+/// built for one [`SimilarityParams`]. Cloning is cheap (entries are shared, the id map is
+/// persistent), so the service publishes a changed copy instead of locking.
 #[derive(Debug, Clone)]
 pub struct Index {
     params: SimilarityParams,
-    entries: Vec<Entry>,
-    position: HashMap<String, usize>,
+    entries: Vec<Arc<Entry>>,
+    position: imbl::HashMap<Arc<str>, usize>,
 }
 
-#[derive(Debug, Clone)]
+#[derive(Debug)]
 struct Entry {
-    id: String,
-    signature: Signature,
+    id: Arc<str>,
+    signature: Arc<Signature>,
     summary: Summary,
 }
 
@@ -120,19 +121,19 @@ impl Index {
         Self {
             params,
             entries: Vec::new(),
-            position: HashMap::new(),
+            position: imbl::HashMap::new(),
         }
     }
 
     /// Adds an entry, replacing one with the same id.
-    pub fn insert(&mut self, id: impl Into<String>, signature: Signature) {
-        let id = id.into();
+    pub fn insert(&mut self, id: impl Into<Arc<str>>, signature: impl Into<Arc<Signature>>) {
+        let (id, signature) = (id.into(), signature.into());
         let summary = Summary::of(&signature, &self.params);
-        let entry = Entry {
+        let entry = Arc::new(Entry {
             id: id.clone(),
             signature,
             summary,
-        };
+        });
         match self.position.get(&id) {
             Some(&i) => self.entries[i] = entry,
             None => {
@@ -155,7 +156,7 @@ impl Index {
     }
 
     /// The signature stored under `id`.
-    pub fn get(&self, id: &str) -> Option<&Signature> {
+    pub fn get(&self, id: &str) -> Option<&Arc<Signature>> {
         self.position.get(id).map(|&i| &self.entries[i].signature)
     }
 
@@ -194,6 +195,15 @@ impl Index {
         }
     }
 
+    /// Entries `keep` accepts that `method` cannot compare (see [`Method::comparable`]): they
+    /// are left out of its rankings until re-extracted, and responses say how many.
+    pub fn incomparable(&self, method: Method, keep: &(dyn Fn(&str) -> bool + Sync)) -> usize {
+        self.entries
+            .iter()
+            .filter(|e| !method.comparable(&e.signature) && keep(&e.id))
+            .count()
+    }
+
     /// [`Index::search_where`] with other similarity parameters than the index was built for
     /// (a query-time `W`): the bounds' summaries do not hold for them, so this ranks
     /// exhaustively unless the parameters are the index's own.
@@ -230,7 +240,7 @@ impl Index {
             .par_iter()
             .filter(|e| keep(&e.id) && method.comparable(&e.signature))
             .map(|e| Hit {
-                id: e.id.clone(),
+                id: e.id.to_string(),
                 distance: distance(method, query, &e.signature, params),
             })
             .collect();
@@ -348,7 +358,7 @@ impl Index {
                 .filter_map(|&i| {
                     let entry = &self.entries[i];
                     exact(entry, kth).map(|distance| Hit {
-                        id: entry.id.clone(),
+                        id: entry.id.to_string(),
                         distance,
                     })
                 })

@@ -10,7 +10,7 @@ use std::path::Path;
 use glam::{DMat3, DVec3};
 use image::{Rgb, RgbImage};
 
-use crate::extract::Extraction;
+use crate::pipeline::Extraction;
 use crate::raster::fill_triangle;
 use crate::salient::SalientPoint;
 use crate::{Error, Result};

@@ -6,29 +6,60 @@
 //! Two encodings: JSON (serde, full precision) for people and tools, and a compact versioned
 //! binary form for storage ([`Signature::to_bytes`]) that keeps ECC values as `f32` and
 //! histogram bins as `u16` fractions of 65 535 (a quantisation step of 1.5e-5, far below the
-//! Monte Carlo noise of a 2 000-sample D2). Format 2 appends the light field descriptor
-//! (4.6 KB, already 8-bit) after the format-1 record, so format-1 signatures still read, as
-//! signatures without one.
+//! Monte Carlo noise of a 2 000-sample D2).
+//!
+//! The binary form (format 3) is a list of tagged sections. What ranking reads (features,
+//! histograms, descriptors) is positional `postcard`, compact and fixed: changing a section's
+//! layout means a new tag or format and a store migration (`migrations/README.md`). The
+//! parameters and statistics are JSON inside their sections, so fields added to them later
+//! take their defaults in older signatures. A reader skips sections it does not know, and a
+//! descriptor added later is a new section that older signatures simply lack (they are then
+//! stale, see [`Signature::staleness`]). Formats 1 and 2 (release 0.1.0) still read.
 
-use std::time::Instant;
-
-use rand::SeedableRng;
-use rand_chacha::ChaCha8Rng;
-use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
-use sha2::{Digest, Sha256};
 
-use crate::descriptor::{d2_histogram, LightFieldDescriptor};
-use crate::extract::{extract, Extraction, ExtractionStats};
-use crate::mesh::{PreparedMesh, RawMesh};
+use crate::descriptor::LightFieldDescriptor;
 use crate::params::Params;
-use crate::salient::{self, SalientStats};
+use crate::pipeline::ExtractionStats;
+use crate::salient::SalientStats;
 use crate::{Error, Result};
 
-/// Version of the binary encoding; bumped when its layout changes. Format 1 (no light field
-/// descriptor) is still read.
-pub const SIGNATURE_FORMAT: u16 = 2;
+mod legacy;
+
+/// Version of the binary encoding: 3 is the sectioned form; 1 and 2 are read by `legacy`.
+pub const SIGNATURE_FORMAT: u16 = 3;
 const MAGIC: &[u8; 4] = b"SLSG";
+
+/// SHA-256 of a prepared mesh: 32 bytes in the binary form, lower-case hex in JSON.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default)]
+pub struct MeshHash(pub [u8; 32]);
+
+impl From<[u8; 32]> for MeshHash {
+    fn from(bytes: [u8; 32]) -> Self {
+        Self(bytes)
+    }
+}
+
+impl std::fmt::Display for MeshHash {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&hex::encode(self.0))
+    }
+}
+
+impl Serialize for MeshHash {
+    fn serialize<S: serde::Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
+        serializer.serialize_str(&self.to_string())
+    }
+}
+
+impl<'de> Deserialize<'de> for MeshHash {
+    fn deserialize<D: serde::Deserializer<'de>>(deserializer: D) -> Result<Self, D::Error> {
+        let text = String::deserialize(deserializer)?;
+        let mut bytes = [0u8; 32];
+        hex::decode_to_slice(&text, &mut bytes).map_err(serde::de::Error::custom)?;
+        Ok(Self(bytes))
+    }
+}
 
 /// One salient feature (Eq. 6: `SF = ECC + SD`).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -50,8 +81,10 @@ pub struct Feature {
     pub region_area: f64,
 }
 
-/// Counts and timings of a whole extraction.
+/// Counts and timings of a whole extraction. Stored as JSON: fields added later take their
+/// defaults in older signatures.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
 pub struct SignatureStats {
     pub extraction: ExtractionStats,
     pub salient: SalientStats,
@@ -63,123 +96,74 @@ pub struct SignatureStats {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Signature {
     /// SHA-256 of the prepared mesh (positions and triangles): equal meshes, equal hash.
-    pub mesh_hash: String,
+    pub mesh_hash: MeshHash,
     pub features: Vec<Feature>,
     /// Global D2 histogram of the whole normalised mesh over `[0, 2]` (SPEC §6).
     pub d2: Vec<f32>,
     /// Light Field Descriptor (SPEC §6); absent from signatures made before it existed
-    /// (format 1), which `salient reindex` renews.
+    /// (format 1), which are therefore stale.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub lfd: Option<LightFieldDescriptor>,
     pub params: Params,
     pub stats: SignatureStats,
 }
 
-/// Loads nothing: extracts the signature of an already loaded mesh.
-pub fn compute(raw: &RawMesh, params: &Params) -> Result<Signature> {
-    Ok(describe(&extract(raw, params)?, params))
+/// Why a stored signature must be re-extracted. This is the one staleness rule: the service
+/// applies it at start, to uploads of content already stored, and to pick what online
+/// re-extraction renews; `salient reindex` applies it offline.
+///
+/// Only extraction parameters count ([`Params::same_extraction`]): ranking parameters
+/// (weights, scales, thresholds, `W`, the penalty) are read from the configuration at query
+/// time, so retuning them never makes a signature stale.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Staleness {
+    /// Made with other extraction parameters, or by another version of the extraction.
+    Parameters,
+    /// Lacks a descriptor that this version computes.
+    MissingDescriptor,
 }
 
-/// Salient features and D2 histograms of an extraction (SPEC §3–4).
-pub fn describe(extraction: &Extraction, params: &Params) -> Signature {
-    let mesh = &extraction.mesh;
-    let clock = Instant::now();
-    let (points, salient_stats) = salient::detect(extraction, params);
-    let salient_seconds = clock.elapsed().as_secs_f64();
-
-    // One PRNG stream per histogram, all seeded from the mesh: the same mesh gives the same
-    // samples on any machine and thread count (SPEC §4).
-    let clock = Instant::now();
-    let hash = mesh_hash(mesh);
-    let seed = u64::from_le_bytes(hash[..8].try_into().expect("a SHA-256 has 32 bytes"));
-    let rng = |stream: u64| {
-        let mut rng = ChaCha8Rng::seed_from_u64(seed);
-        rng.set_stream(stream);
-        rng
-    };
-    let d2 = &params.d2;
-    let region_range = 2.0 * params.ecc.local_size;
-    let features: Vec<Feature> = points
-        .par_iter()
-        .map(|point| {
-            let v = point.vertex as usize;
-            Feature {
-                vertex: point.vertex,
-                position: mesh.input_positions[v].to_array(),
-                position_normalized: mesh.positions[v].to_array(),
-                ecc: extraction.ecc.vector(v).to_vec(),
-                d2: d2_histogram(
-                    &point.region.triangles,
-                    d2.samples,
-                    d2.bins,
-                    region_range,
-                    &mut rng(point.vertex as u64),
-                ),
-                region_size: point.region_size,
-                region_area: point.region.area,
-            }
-        })
-        .collect();
-    let whole: Vec<_> = mesh
-        .triangles
-        .iter()
-        .map(|t| t.map(|v| mesh.positions[v as usize]))
-        .collect();
-    let global = d2_histogram(&whole, d2.samples, d2.bins, 2.0, &mut rng(u64::MAX));
-    let d2_seconds = clock.elapsed().as_secs_f64();
-
-    let clock = Instant::now();
-    let lfd = LightFieldDescriptor::compute(mesh);
-    let lfd_seconds = clock.elapsed().as_secs_f64();
-
-    let mut stats = SignatureStats {
-        extraction: extraction.stats.clone(),
-        salient: salient_stats,
-        salient_seconds,
-        d2_seconds,
-    };
-    stats.extraction.total_seconds += salient_seconds + d2_seconds + lfd_seconds;
-    Signature {
-        mesh_hash: hex(&hash),
-        features,
-        d2: global,
-        lfd: Some(lfd),
-        params: params.clone(),
-        stats,
-    }
-}
-
-/// SHA-256 over the prepared mesh's input-coordinate positions and triangles.
-fn mesh_hash(mesh: &PreparedMesh) -> [u8; 32] {
-    let mut hasher = Sha256::new();
-    for p in &mesh.input_positions {
-        for c in p.to_array() {
-            hasher.update(c.to_le_bytes());
+impl Signature {
+    /// `None` if this signature is what extracting its mesh with `current` would give.
+    pub fn staleness(&self, current: &Params) -> Option<Staleness> {
+        if !self.params.same_extraction(current) {
+            Some(Staleness::Parameters)
+        } else if self.lfd.is_none() {
+            Some(Staleness::MissingDescriptor)
+        } else {
+            None
         }
     }
-    for t in &mesh.triangles {
-        for v in t {
-            hasher.update(v.to_le_bytes());
-        }
-    }
-    hasher.finalize().into()
 }
 
-/// Lower-case hexadecimal.
-pub fn hex(bytes: &[u8]) -> String {
-    bytes.iter().map(|b| format!("{b:02x}")).collect()
+/// Section tags of format 3. A tag's layout never changes; a new layout gets a new tag.
+mod tag {
+    /// [`super::Shape`], postcard.
+    pub const SHAPE: u16 = 1;
+    /// The light field descriptor, postcard.
+    pub const LFD: u16 = 2;
+    /// [`crate::Params`], JSON.
+    pub const PARAMS: u16 = 3;
+    /// [`super::SignatureStats`], JSON.
+    pub const STATS: u16 = 4;
 }
 
-/// The binary record: quantised, and with the hash as raw bytes.
 #[derive(Serialize, Deserialize)]
-struct Stored {
-    mesh_hash: Vec<u8>,
+struct Section {
+    tag: u16,
+    bytes: Vec<u8>,
+}
+
+/// What ranking reads, quantised, with the hash as raw bytes.
+#[derive(Serialize, Deserialize)]
+struct Shape {
+    mesh_hash: [u8; 32],
     features: Vec<StoredFeature>,
     d2: Vec<u16>,
-    params: Params,
-    stats: SignatureStats,
 }
 
+/// A feature as stored: the same layout in formats 1, 2 and 3.
 #[derive(Serialize, Deserialize)]
 struct StoredFeature {
     vertex: u32,
@@ -189,6 +173,20 @@ struct StoredFeature {
     d2: Vec<u16>,
     region_size: f32,
     region_area: f32,
+}
+
+impl From<StoredFeature> for Feature {
+    fn from(f: StoredFeature) -> Self {
+        Feature {
+            vertex: f.vertex,
+            position: f.position,
+            position_normalized: f.position_normalized.map(f64::from),
+            ecc: f.ecc.into_iter().map(f64::from).collect(),
+            d2: dequantise(&f.d2),
+            region_size: f.region_size.into(),
+            region_area: f.region_area.into(),
+        }
+    }
 }
 
 const BIN_SCALE: f64 = 65_535.0;
@@ -207,15 +205,18 @@ fn dequantise(histogram: &[u16]) -> Vec<f32> {
         .collect()
 }
 
+fn corrupt(message: impl ToString) -> Error {
+    Error::CorruptSignature {
+        message: message.to_string(),
+    }
+}
+
 impl Signature {
-    /// Compact, versioned binary form: `SLSG`, the format version (u16, little endian), the
-    /// record in `postcard`, then the optional light field descriptor in `postcard`. Lossy as
-    /// described in the module documentation.
+    /// The binary form: `SLSG`, the format version (u16, little endian), then the sections
+    /// in `postcard`. Lossy as described in the module documentation.
     pub fn to_bytes(&self) -> Vec<u8> {
-        let stored = Stored {
-            mesh_hash: (0..self.mesh_hash.len() / 2)
-                .filter_map(|i| u8::from_str_radix(&self.mesh_hash[2 * i..2 * i + 2], 16).ok())
-                .collect(),
+        let shape = Shape {
+            mesh_hash: self.mesh_hash.0,
             features: self
                 .features
                 .iter()
@@ -230,56 +231,77 @@ impl Signature {
                 })
                 .collect(),
             d2: quantise(&self.d2),
-            params: self.params.clone(),
-            stats: self.stats.clone(),
         };
+        let in_memory = "serialising to memory cannot fail";
+        let mut sections = vec![Section {
+            tag: tag::SHAPE,
+            bytes: postcard::to_stdvec(&shape).expect(in_memory),
+        }];
+        if let Some(lfd) = &self.lfd {
+            sections.push(Section {
+                tag: tag::LFD,
+                bytes: postcard::to_stdvec(lfd).expect(in_memory),
+            });
+        }
+        sections.push(Section {
+            tag: tag::PARAMS,
+            bytes: serde_json::to_vec(&self.params).expect(in_memory),
+        });
+        sections.push(Section {
+            tag: tag::STATS,
+            bytes: serde_json::to_vec(&self.stats).expect(in_memory),
+        });
         let mut bytes = MAGIC.to_vec();
         bytes.extend(SIGNATURE_FORMAT.to_le_bytes());
-        for part in [postcard::to_stdvec(&stored), postcard::to_stdvec(&self.lfd)] {
-            bytes.extend(part.expect("serialising to memory cannot fail"));
-        }
+        bytes.extend(postcard::to_stdvec(&sections).expect(in_memory));
         bytes
     }
 
-    /// Reads [`Signature::to_bytes`] output.
+    /// The binary format version of `bytes`, if they are a signature at all.
+    pub fn format_of(bytes: &[u8]) -> Option<u16> {
+        (bytes.len() >= 6 && &bytes[..4] == MAGIC).then(|| u16::from_le_bytes([bytes[4], bytes[5]]))
+    }
+
+    /// Reads [`Signature::to_bytes`] output, and formats 1 and 2.
     pub fn from_bytes(bytes: &[u8]) -> Result<Self> {
-        let corrupt = |message: String| Error::CorruptSignature { message };
-        if bytes.len() < 6 || &bytes[..4] != MAGIC {
-            return Err(corrupt("not a salient signature (bad magic)".into()));
-        }
-        let format = u16::from_le_bytes([bytes[4], bytes[5]]);
-        if !(1..=SIGNATURE_FORMAT).contains(&format) {
-            return Err(Error::SignatureFormat {
-                found: format,
+        let format =
+            Self::format_of(bytes).ok_or_else(|| corrupt("not a salient signature (bad magic)"))?;
+        match format {
+            1 | 2 => legacy::decode(format, &bytes[6..]),
+            SIGNATURE_FORMAT => Self::from_sections(&bytes[6..]),
+            found => Err(Error::SignatureFormat {
+                found,
                 supported: SIGNATURE_FORMAT,
-            });
+            }),
         }
-        let (stored, rest): (Stored, _) =
-            postcard::take_from_bytes(&bytes[6..]).map_err(|e| corrupt(e.to_string()))?;
-        let lfd = match format {
-            1 if rest.is_empty() => None,
-            1 => return Err(corrupt("bytes after the record".into())),
-            _ => postcard::from_bytes(rest).map_err(|e| corrupt(e.to_string()))?,
+    }
+
+    fn from_sections(body: &[u8]) -> Result<Self> {
+        let sections: Vec<Section> = postcard::from_bytes(body).map_err(corrupt)?;
+        let find = |wanted: u16| {
+            sections
+                .iter()
+                .find(|s| s.tag == wanted)
+                .map(|s| &s.bytes[..])
         };
+        let required = |wanted: u16, name: &str| {
+            find(wanted).ok_or_else(|| corrupt(format!("no {name} section")))
+        };
+        let shape: Shape = postcard::from_bytes(required(tag::SHAPE, "shape")?).map_err(corrupt)?;
+        let lfd = find(tag::LFD)
+            .map(postcard::from_bytes)
+            .transpose()
+            .map_err(corrupt)?;
+        let params =
+            serde_json::from_slice(required(tag::PARAMS, "parameters")?).map_err(corrupt)?;
+        let stats = serde_json::from_slice(required(tag::STATS, "statistics")?).map_err(corrupt)?;
         Ok(Signature {
-            mesh_hash: hex(&stored.mesh_hash),
-            features: stored
-                .features
-                .into_iter()
-                .map(|f| Feature {
-                    vertex: f.vertex,
-                    position: f.position,
-                    position_normalized: f.position_normalized.map(f64::from),
-                    ecc: f.ecc.into_iter().map(f64::from).collect(),
-                    d2: dequantise(&f.d2),
-                    region_size: f.region_size.into(),
-                    region_area: f.region_area.into(),
-                })
-                .collect(),
-            d2: dequantise(&stored.d2),
+            mesh_hash: MeshHash(shape.mesh_hash),
+            features: shape.features.into_iter().map(Feature::from).collect(),
+            d2: dequantise(&shape.d2),
             lfd,
-            params: stored.params,
-            stats: stored.stats,
+            params,
+            stats,
         })
     }
 }

@@ -28,6 +28,9 @@ pub struct Config {
     pub cors_origins: Vec<String>,
     /// Largest `k` a search may ask for.
     pub max_k: usize,
+    /// Re-extract stale signatures in the background when the server starts and finds any
+    /// (after an upgrade or a change of extraction parameters); they serve meanwhile.
+    pub reindex_on_start: bool,
     /// Input limits (vertex and triangle counts).
     pub limits: Limits,
     /// Extraction and similarity parameters of the stored signatures.
@@ -45,6 +48,7 @@ impl Default for Config {
             request_timeout_secs: 120,
             cors_origins: Vec::new(),
             max_k: 1000,
+            reindex_on_start: true,
             limits: Limits {
                 max_input_vertices: 2_000_000,
                 max_input_triangles: 4_000_000,

@@ -1,5 +1,9 @@
 //! One error type for every HTTP failure, ours or axum's, with one JSON shape:
 //! `{"error": {"code": "…", "message": "…"}}` (SPEC §8; axum's `examples/error-handling`).
+//!
+//! An internal error's detail (a sled error, a corrupt signature, a path) is logged in the
+//! request's span, whose `request_id` is the `x-request-id` the client got; the response
+//! says only what happened in general terms.
 
 use axum::extract::multipart::MultipartError;
 use axum::extract::rejection::{BytesRejection, JsonRejection, PathRejection, QueryRejection};
@@ -8,6 +12,7 @@ use axum::response::{IntoResponse, Response};
 use axum::Json;
 use serde::Serialize;
 
+use crate::model::InvalidId;
 use crate::store::StoreError;
 
 /// Everything a request can fail with.
@@ -33,9 +38,14 @@ pub enum AppError {
     Overloaded { retry_after_secs: u64 },
     #[error("extraction did not finish within {0} s")]
     Timeout(u64),
+    /// Our fault. The text is for the log only.
     #[error("internal error: {0}")]
     Internal(String),
 }
+
+/// What a client is told of an internal error.
+const INTERNAL_MESSAGE: &str =
+    "internal error; the server log has the details under this response's x-request-id";
 
 /// The JSON body of every error response.
 #[derive(Debug, Serialize, serde::Deserialize, utoipa::ToSchema)]
@@ -55,6 +65,14 @@ impl AppError {
         AppError::BadRequest {
             code,
             message: message.into(),
+        }
+    }
+
+    /// The message a client may see: the error itself, except for internal ones.
+    pub fn public_message(&self) -> String {
+        match self {
+            AppError::Internal(_) => INTERNAL_MESSAGE.to_string(),
+            other => other.to_string(),
         }
     }
 
@@ -84,7 +102,7 @@ impl IntoResponse for AppError {
         let body = Json(ErrorBody {
             error: ErrorDetail {
                 code: code.to_string(),
-                message: self.to_string(),
+                message: self.public_message(),
             },
         });
         match self {
@@ -121,6 +139,12 @@ impl From<crate::Error> for AppError {
             | E::CorruptSignature { .. }
             | E::SignatureFormat { .. } => AppError::Internal(e.to_string()),
         }
+    }
+}
+
+impl From<InvalidId> for AppError {
+    fn from(e: InvalidId) -> Self {
+        AppError::bad_request("invalid_id", e.to_string())
     }
 }
 

@@ -2,17 +2,19 @@
 //! a [`Store`], an in-memory [`Index`] of every stored signature, and the bounded extraction
 //! [`pool::Pool`]. Handlers only translate between HTTP and the library.
 
+mod catalog;
 pub mod config;
 pub mod error;
 mod metrics;
 mod models;
 mod ops;
 pub mod pool;
+mod reindex;
 mod search;
 pub mod upload;
 
-use std::collections::BTreeMap;
-use std::sync::{Arc, RwLock};
+use std::ops::Deref;
+use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use axum::extract::{DefaultBodyLimit, MatchedPath, Request, State};
@@ -27,38 +29,48 @@ use tower_http::trace::TraceLayer;
 use utoipa::OpenApi;
 use utoipa_axum::router::OpenApiRouter;
 
-use crate::mesh::load_bytes;
-use crate::rank::Index;
-use crate::signature::{compute, Signature};
-use crate::store::{Store, StoreError, Upload};
+use crate::model::Upload;
+use crate::pipeline::signature_of_file;
+use crate::signature::{Signature, Staleness};
+use crate::store::{Store, StoreError};
+use catalog::{Catalog, Snapshot};
 pub use config::Config;
 use error::AppError;
 use metrics::{Metrics, RequestLabels};
 use pool::Pool;
+pub use reindex::{ReindexProgress, ReindexState};
 
 /// Shared state of the service (`AppState(Arc<App>)`, as crates.io does it).
 #[derive(Clone)]
 pub struct AppState(pub Arc<App>);
 
-/// The service: configuration, store, index and pool.
+impl Deref for AppState {
+    type Target = Arc<App>;
+    fn deref(&self) -> &Arc<App> {
+        &self.0
+    }
+}
+
+/// A function the service calls at a fixed point of its work, for tests that need to hold
+/// it there (with a barrier or a channel) while something else happens.
+pub type Hook = Arc<dyn Fn() + Send + Sync>;
+
+/// The service: configuration, store, catalogue, pools and background work.
 pub struct App {
     pub config: Config,
     store: Arc<dyn Store>,
-    catalog: RwLock<Catalog>,
+    catalog: Catalog,
     pool: Pool,
     /// Ranking's own rayon pool. On the global pool, which extraction's parallel loops fill,
     /// a search waited for the extractions in progress: during an ingest, the p99 latency of
     /// `similar` over 1 000 models went from 33 ms to 2.2 s (`benches/load.rs`).
     ranker: rayon::ThreadPool,
     metrics: Metrics,
-    /// Serialises writes so that the store and the index change in the same order.
+    /// Serialises writes so that the store and the catalogue change in the same order.
     writes: tokio::sync::Mutex<()>,
-}
-
-/// The in-memory view of the store: records by id (ordered, for listing) and the index.
-struct Catalog {
-    records: BTreeMap<String, crate::store::ModelRecord>,
-    index: Index,
+    reindex: reindex::Reindexer,
+    /// Called on the ranking thread while it holds its catalogue snapshot (tests).
+    ranking_hook: Option<Hook>,
 }
 
 /// Starting the service failed.
@@ -68,7 +80,7 @@ pub enum StartError {
     Store(#[from] StoreError),
     #[error("cannot start the ranking threads: {0}")]
     Threads(String),
-    #[error("stored signature of {id} cannot be read: {source}; run `salient reindex`")]
+    #[error("stored signature of {id} cannot be read: {source}")]
     Signature {
         id: String,
         #[source]
@@ -77,35 +89,34 @@ pub enum StartError {
 }
 
 impl App {
-    /// Loads every stored signature into the index.
+    /// Loads every stored signature into the catalogue. Stale ones keep serving until they
+    /// are re-extracted ([`App::start_background`]).
     pub fn new(config: Config, store: Arc<dyn Store>) -> Result<Self, StartError> {
-        let mut records = BTreeMap::new();
-        let mut index = Index::new(config.params.similarity.clone());
-        let (mut stale, mut without_lfd) = (0, 0);
+        let mut snapshot = Snapshot::empty(config.params.similarity.clone());
+        let (mut stale_parameters, mut missing_descriptor) = (0, 0);
         for loaded in store.load_all() {
             let loaded = loaded?;
-            let id = loaded.record.id.clone();
             let signature = Signature::from_bytes(&loaded.signature).map_err(|source| {
                 StartError::Signature {
-                    id: id.clone(),
+                    id: loaded.record.id.to_string(),
                     source,
                 }
             })?;
-            let (p, c) = (&signature.params, &config.params);
-            if (&p.mesh, &p.ecc, &p.salient, &p.d2) != (&c.mesh, &c.ecc, &c.salient, &c.d2) {
-                stale += 1;
+            match signature.staleness(&config.params) {
+                Some(Staleness::Parameters) => stale_parameters += 1,
+                Some(Staleness::MissingDescriptor) => missing_descriptor += 1,
+                None => {}
             }
-            if signature.lfd.is_none() {
-                without_lfd += 1;
-            }
-            index.insert(id.clone(), signature);
-            records.insert(id, loaded.record);
+            snapshot.put(loaded.record, signature);
         }
-        if stale > 0 {
-            tracing::warn!(stale, "models were extracted with other parameters than configured; run `salient reindex`");
-        }
-        if without_lfd > 0 {
-            tracing::warn!(without_lfd, "models were stored before the light field descriptor and are left out of `lfd` searches; run `salient reindex`");
+        let models = snapshot.records.len();
+        let catalog = Catalog::new(snapshot);
+        if stale_parameters + missing_descriptor > 0 {
+            tracing::warn!(
+                stale_parameters,
+                missing_descriptor,
+                "stored signatures are stale and keep serving until they are re-extracted"
+            );
         }
         let pool = Pool::new(
             config.workers,
@@ -117,29 +128,55 @@ impl App {
             .build()
             .map_err(|e| StartError::Threads(e.to_string()))?;
         let metrics = Metrics::default();
-        metrics.models.set(records.len() as i64);
+        metrics.models.set(models as i64);
+        let reindex = reindex::Reindexer::load(store.as_ref())?;
         Ok(Self {
             config,
             store,
-            catalog: RwLock::new(Catalog { records, index }),
+            catalog,
             pool,
             ranker,
             metrics,
             writes: tokio::sync::Mutex::new(()),
+            reindex,
+            ranking_hook: None,
         })
     }
 
-    /// Models in the index.
-    pub fn catalog_len(&self) -> usize {
-        self.catalog
-            .read()
-            .expect("catalog lock poisoned")
-            .records
-            .len()
+    /// Sets the hook called on the ranking thread while it holds its snapshot (tests).
+    pub fn set_ranking_hook(&mut self, hook: Hook) {
+        self.ranking_hook = Some(hook);
     }
 
-    /// Extracts the signature of an upload on the pool, in its stored (binary round-tripped)
-    /// form, so that a query ranks exactly as the same model stored or searched offline.
+    /// Starts the background work the store calls for: a re-extraction left unfinished by
+    /// the last run, or one of the stale signatures found at start (unless
+    /// `reindex_on_start` is off). Needs a Tokio runtime.
+    pub fn start_background(self: &Arc<Self>) {
+        let stale = self.stale_count();
+        if self.reindex.was_running() || (self.config.reindex_on_start && stale > 0) {
+            reindex::start(self);
+        }
+    }
+
+    /// Models in the catalogue.
+    pub fn catalog_len(&self) -> usize {
+        self.catalog.snapshot().records.len()
+    }
+
+    /// Models whose stored signature is stale under the configured parameters.
+    pub fn stale_count(&self) -> usize {
+        self.catalog
+            .snapshot()
+            .stale_after(None, &self.config.params)
+            .count()
+    }
+
+    /// The progress of online re-extraction, as it changes.
+    pub fn reindex_progress(&self) -> tokio::sync::watch::Receiver<ReindexProgress> {
+        self.reindex.subscribe()
+    }
+
+    /// Extracts the signature of an upload on the pool, in its stored form.
     async fn extract(&self, upload: Arc<Upload>) -> Result<Signature, AppError> {
         let params = self.config.params.clone();
         let limits = self.config.limits;
@@ -147,8 +184,13 @@ impl App {
         let signature = self
             .pool
             .run(move || {
-                let raw = load_bytes(&upload.mesh, upload.format, &upload.resources, &limits)?;
-                Signature::from_bytes(&compute(&raw, &params)?.to_bytes())
+                signature_of_file(
+                    &upload.mesh,
+                    upload.format,
+                    &upload.resources,
+                    &params,
+                    &limits,
+                )
             })
             .await??;
         self.metrics
@@ -157,21 +199,45 @@ impl App {
         Ok(signature)
     }
 
-    /// Runs `f` on the catalog off the async threads, on the ranking pool (ranking is CPU
-    /// work). The lock is taken before entering the pool: a pool thread waiting for it (behind
-    /// a queued writer) could be one whose stack holds another ranking's unfinished half, which
-    /// keeps the read lock the writer waits for — a deadlock.
+    /// Runs `f` on a snapshot of the catalogue, on the ranking pool (ranking is CPU work),
+    /// in the request's tracing span. No lock is taken: a write meanwhile publishes a new
+    /// snapshot and leaves this one as it was.
     async fn read_catalog<T: Send + 'static>(
         self: &Arc<Self>,
-        f: impl FnOnce(&Catalog) -> T + Send + 'static,
+        f: impl FnOnce(&Snapshot) -> T + Send + 'static,
     ) -> Result<T, AppError> {
         let app = self.clone();
+        let snapshot = self.catalog.snapshot();
+        let span = tracing::Span::current();
         tokio::task::spawn_blocking(move || {
-            let catalog = app.catalog.read().expect("catalog lock poisoned");
-            app.ranker.install(|| f(&catalog))
+            let _span = span.enter();
+            if let Some(hook) = &app.ranking_hook {
+                hook();
+            }
+            app.ranker.install(|| f(&snapshot))
         })
         .await
-        .map_err(|e| AppError::Internal(e.to_string()))
+        .map_err(|e| AppError::Internal(format!("ranking failed: {e}")))
+    }
+
+    /// Runs a store operation on a blocking thread, in the request's tracing span.
+    async fn with_store<T: Send + 'static>(
+        &self,
+        f: impl FnOnce(&dyn Store) -> Result<T, StoreError> + Send + 'static,
+    ) -> Result<T, AppError> {
+        let store = self.store.clone();
+        let span = tracing::Span::current();
+        tokio::task::spawn_blocking(move || {
+            let _span = span.enter();
+            f(store.as_ref())
+        })
+        .await
+        .map_err(|e| AppError::Internal(format!("store task failed: {e}")))?
+        .map_err(AppError::from)
+    }
+
+    fn set_model_count(&self, models: usize) {
+        self.metrics.models.set(models as i64);
     }
 }
 
@@ -185,6 +251,7 @@ impl App {
     tags(
         (name = "models", description = "Stored models"),
         (name = "search", description = "Similarity search and extraction"),
+        (name = "admin", description = "Re-extraction of stored models"),
         (name = "operations", description = "Health, readiness, metrics")
     )
 )]
@@ -202,6 +269,10 @@ fn routes() -> OpenApiRouter<AppState> {
         .routes(utoipa_axum::routes!(search::similar))
         .routes(utoipa_axum::routes!(search::search))
         .routes(utoipa_axum::routes!(search::extract))
+        .routes(utoipa_axum::routes!(
+            reindex::start_reindex,
+            reindex::get_reindex
+        ))
         .routes(utoipa_axum::routes!(ops::healthz))
         .routes(utoipa_axum::routes!(ops::readyz))
         .routes(utoipa_axum::routes!(ops::metrics))
@@ -216,7 +287,7 @@ pub fn openapi_yaml() -> String {
 
 /// The service as a router, ready to serve or to drive from tests.
 pub fn app(state: AppState) -> Router {
-    let config = &state.0.config;
+    let config = &state.config;
     let (router, _) = routes().split_for_parts();
     let cors = match config.cors_origins.as_slice() {
         [] => CorsLayer::new(),
@@ -239,10 +310,26 @@ pub fn app(state: AppState) -> Router {
         .layer(CompressionLayer::new())
         .layer(cors)
         .layer(PropagateRequestIdLayer::new(request_id.clone()))
-        .layer(TraceLayer::new_for_http())
+        .layer(TraceLayer::new_for_http().make_span_with(request_span))
         .layer(SetRequestIdLayer::new(request_id, MakeRequestUuid))
         .fallback(|| async { AppError::NotFound("no such route".into()) })
         .with_state(state)
+}
+
+/// The tracing span of a request: method, route and the request id, so that every log line
+/// of a request (an internal error's detail among them) can be found from the `x-request-id`
+/// the client got. The raw path is left out: it can hold ids that are not ours to log.
+fn request_span(request: &Request) -> tracing::Span {
+    let route = request
+        .extensions()
+        .get::<MatchedPath>()
+        .map_or("unmatched", |p| p.as_str());
+    let id = request
+        .headers()
+        .get("x-request-id")
+        .and_then(|v| v.to_str().ok())
+        .unwrap_or("");
+    tracing::info_span!("request", method = %request.method(), route, request_id = id)
 }
 
 /// Counts every request by route pattern and status for `/metrics`.
@@ -255,7 +342,6 @@ async fn count_requests(State(state): State<AppState>, request: Request, next: N
         .to_string();
     let response = next.run(request).await;
     state
-        .0
         .metrics
         .requests
         .get_or_create(&RequestLabels {

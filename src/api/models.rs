@@ -1,26 +1,17 @@
 //! `/v1/models`: add, replace, list, get, delete, and a model's signature.
 
 use std::sync::Arc;
-use std::time::{SystemTime, UNIX_EPOCH};
 
-use axum::extract::rejection::{PathRejection, QueryRejection};
-use axum::extract::{Path, Query, State};
+use axum::extract::State;
 use axum::http::StatusCode;
 use axum::Json;
 use serde::{Deserialize, Serialize};
 
 use super::error::{AppError, ErrorBody};
-use super::upload::{check_id, MeshFile, MeshForm, MeshUpload, ModelFields, ModelPath};
+use super::upload::{AppPath, AppQuery, MeshFile, MeshForm, MeshUpload, ModelFields, ModelPath};
 use super::AppState;
-use crate::params::PARAMS_VERSION;
+use crate::model::{ModelId, ModelRecord};
 use crate::signature::Signature;
-use crate::store::ModelRecord;
-
-fn now() -> u64 {
-    SystemTime::now()
-        .duration_since(UNIX_EPOCH)
-        .map_or(0, |d| d.as_secs())
-}
 
 /// Add a model, or replace the model with the same id.
 ///
@@ -56,77 +47,50 @@ fn now() -> u64 {
     )
 )]
 pub async fn add_model(
-    State(state): State<AppState>,
+    State(app): State<AppState>,
     upload: MeshUpload,
 ) -> Result<(StatusCode, Json<ModelRecord>), AppError> {
-    let app = &state.0;
     let MeshUpload { upload, fields } = upload;
-    let content_hash = upload.content_hash();
-    let existing_id = app.store.find_content(&content_hash)?;
-    let id = match (&fields.id, &existing_id) {
-        (Some(id), _) => {
-            check_id(id)?;
-            id.clone()
-        }
-        (None, Some(existing)) => existing.clone(),
-        (None, None) => content_hash[..16].to_string(),
+    let content_hash = upload.content_hash().to_string();
+    let named = fields.id()?;
+    let existing = {
+        let hash = content_hash.clone();
+        app.with_store(move |store| store.find_content(&hash))
+            .await?
     };
-    let stored = app
-        .catalog
-        .read()
-        .expect("catalog lock poisoned")
-        .records
-        .get(&id)
-        .cloned();
-    if let Some(record) = stored {
+    let id = named
+        .clone()
+        .or(existing)
+        .unwrap_or_else(|| ModelId::from_content(&content_hash));
+    let wanted = fields.fields();
+    let snapshot = app.catalog.snapshot();
+    if let (Some(record), Some(signature)) =
+        (snapshot.records.get(&id), snapshot.index.get(id.as_str()))
+    {
         let unchanged = record.content_hash == content_hash
-            && record.params_version == PARAMS_VERSION
-            && (fields.id.is_none()
-                || (record.name == fields.name
-                    && record.tags == fields.tag_list()
-                    && record.class == fields.class));
+            && signature.staleness(&app.config.params).is_none()
+            && (named.is_none() || record.fields() == wanted);
         if unchanged {
-            return Ok((StatusCode::OK, Json(record)));
+            return Ok((StatusCode::OK, Json(ModelRecord::clone(record))));
         }
     }
+    drop(snapshot);
 
     let upload = Arc::new(upload);
     let signature = app.extract(upload.clone()).await?;
-    let (mesh_blob, resources) = upload.blobs();
-    let stats = &signature.stats.extraction.mesh;
-    let mut record = ModelRecord {
-        id: id.clone(),
-        name: fields.name.clone(),
-        tags: fields.tag_list(),
-        class: fields.class.clone(),
-        content_hash,
-        format: upload.format,
-        mesh_blob,
-        resources,
-        vertices: stats.vertices,
-        triangles: stats.triangles,
-        features: signature.features.len(),
-        params_version: PARAMS_VERSION,
-        created_unix: now(),
-        updated_unix: now(),
-    };
+    let mut record = ModelRecord::new(id, wanted, &upload, &signature);
     let bytes = signature.to_bytes();
 
     let _write = app.writes.lock().await;
-    let store = app.store.clone();
-    let (to_store, upload_owned) = (record.clone(), upload.clone());
-    let previous = tokio::task::spawn_blocking(move || store.put(&to_store, &bytes, &upload_owned))
-        .await
-        .map_err(|e| AppError::Internal(e.to_string()))??;
+    let (to_store, stored_upload) = (record.clone(), upload.clone());
+    let previous = app
+        .with_store(move |store| store.put(&to_store, &bytes, &stored_upload))
+        .await?;
     if let Some(previous) = &previous {
         record.created_unix = previous.created_unix;
     }
-    {
-        let mut catalog = app.catalog.write().expect("catalog lock poisoned");
-        catalog.index.insert(id.clone(), signature);
-        catalog.records.insert(id, record.clone());
-        app.metrics.models.set(catalog.records.len() as i64);
-    }
+    let models = app.catalog.put(record.clone(), signature);
+    app.set_model_count(models);
     let status = if previous.is_some() {
         StatusCode::OK
     } else {
@@ -172,10 +136,9 @@ pub struct ModelPage {
     )
 )]
 pub async fn list_models(
-    State(state): State<AppState>,
-    query: Result<Query<ListQuery>, QueryRejection>,
+    State(app): State<AppState>,
+    AppQuery(q): AppQuery<ListQuery>,
 ) -> Result<Json<ModelPage>, AppError> {
-    let Query(q) = query?;
     let limit = q.limit.unwrap_or(100);
     if !(1..=1000).contains(&limit) {
         return Err(AppError::bad_request(
@@ -183,35 +146,31 @@ pub async fn list_models(
             "limit must be between 1 and 1000",
         ));
     }
-    let catalog = state.0.catalog.read().expect("catalog lock poisoned");
-    let after = q.after.clone().unwrap_or_default();
-    let mut matching = catalog
+    let snapshot = app.catalog.snapshot();
+    let after = q.after.as_deref().unwrap_or("");
+    let mut matching = snapshot
         .records
-        .range::<String, _>((
-            std::ops::Bound::Excluded(&after),
-            std::ops::Bound::Unbounded,
-        ))
+        .range::<_, str>((std::ops::Bound::Excluded(after), std::ops::Bound::Unbounded))
         .map(|(_, r)| r)
         .filter(|r| q.tag.as_ref().is_none_or(|t| r.tags.contains(t)))
         .filter(|r| q.class.as_ref().is_none_or(|c| r.class.as_ref() == Some(c)))
         .filter(|r| q.content_hash.as_ref().is_none_or(|h| &r.content_hash == h));
-    let models: Vec<ModelRecord> = matching.by_ref().take(limit).cloned().collect();
+    let models: Vec<ModelRecord> = matching
+        .by_ref()
+        .take(limit)
+        .map(|r| ModelRecord::clone(r))
+        .collect();
     let next = if matching.next().is_some() {
-        models.last().map(|m| m.id.clone())
+        models.last().map(|m| m.id.to_string())
     } else {
         None
     };
     Ok(Json(ModelPage { models, next }))
 }
 
-fn record_of(state: &AppState, id: &str) -> Result<ModelRecord, AppError> {
-    check_id(id)?;
-    let catalog = state.0.catalog.read().expect("catalog lock poisoned");
-    catalog
-        .records
-        .get(id)
-        .cloned()
-        .ok_or_else(|| AppError::NotFound(format!("no model {id:?}")))
+/// The answer to a request for a model that is not there.
+pub fn no_model(id: &ModelId) -> AppError {
+    AppError::NotFound(format!("no model {:?}", id.as_str()))
 }
 
 /// Get a model's record.
@@ -227,10 +186,13 @@ fn record_of(state: &AppState, id: &str) -> Result<ModelRecord, AppError> {
     )
 )]
 pub async fn get_model(
-    State(state): State<AppState>,
-    id: Result<Path<ModelPath>, PathRejection>,
+    State(app): State<AppState>,
+    AppPath(path): AppPath<ModelPath>,
 ) -> Result<Json<ModelRecord>, AppError> {
-    Ok(Json(record_of(&state, &id?.0.id)?))
+    let id = path.id()?;
+    let snapshot = app.catalog.snapshot();
+    let record = snapshot.records.get(&id).ok_or_else(|| no_model(&id))?;
+    Ok(Json(ModelRecord::clone(record)))
 }
 
 /// Delete a model (its files go when no other model uses them).
@@ -246,25 +208,20 @@ pub async fn get_model(
     )
 )]
 pub async fn delete_model(
-    State(state): State<AppState>,
-    id: Result<Path<ModelPath>, PathRejection>,
+    State(app): State<AppState>,
+    AppPath(path): AppPath<ModelPath>,
 ) -> Result<StatusCode, AppError> {
-    let id = id?.0.id;
-    check_id(&id)?;
-    let app = &state.0;
+    let id = path.id()?;
     let _write = app.writes.lock().await;
-    let store = app.store.clone();
     let key = id.clone();
-    let removed = tokio::task::spawn_blocking(move || store.delete(&key))
-        .await
-        .map_err(|e| AppError::Internal(e.to_string()))??;
+    let removed = app
+        .with_store(move |store| store.delete(key.as_str()))
+        .await?;
     if removed.is_none() {
-        return Err(AppError::NotFound(format!("no model {id:?}")));
+        return Err(no_model(&id));
     }
-    let mut catalog = app.catalog.write().expect("catalog lock poisoned");
-    catalog.index.remove(&id);
-    catalog.records.remove(&id);
-    app.metrics.models.set(catalog.records.len() as i64);
+    let models = app.catalog.remove(&id);
+    app.set_model_count(models);
     Ok(StatusCode::NO_CONTENT)
 }
 
@@ -281,16 +238,14 @@ pub async fn delete_model(
     )
 )]
 pub async fn get_signature(
-    State(state): State<AppState>,
-    id: Result<Path<ModelPath>, PathRejection>,
-) -> Result<Json<Signature>, AppError> {
-    let id = id?.0.id;
-    record_of(&state, &id)?;
-    let catalog = state.0.catalog.read().expect("catalog lock poisoned");
-    catalog
+    State(app): State<AppState>,
+    AppPath(path): AppPath<ModelPath>,
+) -> Result<Json<Arc<Signature>>, AppError> {
+    let id = path.id()?;
+    let snapshot = app.catalog.snapshot();
+    let signature = snapshot
         .index
-        .get(&id)
-        .cloned()
-        .map(Json)
-        .ok_or_else(|| AppError::NotFound(format!("no model {id:?}")))
+        .get(id.as_str())
+        .ok_or_else(|| no_model(&id))?;
+    Ok(Json(signature.clone()))
 }

@@ -23,8 +23,8 @@ fn status(state: &AppState) -> Status {
         status: "ok".into(),
         // The gauge, not the catalog: a catalog reader queues behind a pending write, which
         // waits for running searches; liveness must not.
-        models: state.0.metrics.models.get().max(0) as usize,
-        extractions_in_flight: state.0.pool.in_flight(),
+        models: state.metrics.models.get().max(0) as usize,
+        extractions_in_flight: state.pool.in_flight(),
     }
 }
 
@@ -44,7 +44,7 @@ pub async fn readyz(State(state): State<AppState>) -> Json<Status> {
 /// Prometheus metrics in the text exposition format.
 #[utoipa::path(get, path = "/metrics", tag = "operations", responses((status = 200, description = "Metrics", body = String, content_type = "text/plain")))]
 pub async fn metrics(State(state): State<AppState>) -> impl IntoResponse {
-    let app = &state.0;
+    let app = &state;
     app.metrics
         .extraction_in_flight
         .set(app.pool.in_flight() as i64);

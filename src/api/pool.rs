@@ -2,7 +2,10 @@
 //! most `workers` at once, with at most `queue_depth` more waiting. A request that finds the
 //! queue full is answered 503 at once instead of piling up; one that waits past the time
 //! limit is answered 503 too, while its job (which cannot be interrupted) keeps its permit
-//! until it ends, so the pool never runs more than `workers` jobs.
+//! until it ends, so the pool never runs more than `workers` jobs. A job whose caller gave up
+//! before a worker was free (the client went away, or the time limit passed) never runs.
+//! Background work ([`Pool::run_background`]) waits for a worker without taking a queue slot.
+//! Jobs run in the tracing span of their caller.
 
 use std::sync::Arc;
 use std::time::Duration;
@@ -46,23 +49,139 @@ impl Pool {
                 .map_err(|_| AppError::Overloaded {
                     retry_after_secs: 1,
                 })?;
-        let running = self.running.clone();
-        let work = async move {
-            let worker = running
-                .acquire_owned()
-                .await
-                .expect("the pool's semaphore is never closed");
-            tokio::task::spawn_blocking(move || {
-                let result = job();
-                drop((worker, admitted));
-                result
-            })
-            .await
-        };
-        match tokio::time::timeout(self.timeout, work).await {
-            Ok(Ok(value)) => Ok(value),
-            Ok(Err(join)) => Err(AppError::Internal(format!("extraction failed: {join}"))),
+        match tokio::time::timeout(self.timeout, self.run_with(admitted, job)).await {
+            Ok(result) => result,
             Err(_) => Err(AppError::Timeout(self.timeout.as_secs())),
         }
+    }
+
+    /// Runs `job` once a worker is free, however long that takes: for background work,
+    /// which must neither fill the queue that uploads are refused by nor time out.
+    pub async fn run_background<T: Send + 'static>(
+        &self,
+        job: impl FnOnce() -> T + Send + 'static,
+    ) -> Result<T, AppError> {
+        self.run_with((), job).await
+    }
+
+    /// Waits for a worker, then runs `job` on a blocking thread holding it and `permit`.
+    async fn run_with<T: Send + 'static, P: Send + 'static>(
+        &self,
+        permit: P,
+        job: impl FnOnce() -> T + Send + 'static,
+    ) -> Result<T, AppError> {
+        let worker = self
+            .running
+            .clone()
+            .acquire_owned()
+            .await
+            .expect("the pool's semaphore is never closed");
+        let span = tracing::Span::current();
+        tokio::task::spawn_blocking(move || {
+            let _span = span.enter();
+            let result = job();
+            drop((worker, permit));
+            result
+        })
+        .await
+        .map_err(|join| AppError::Internal(format!("extraction failed: {join}")))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use std::sync::atomic::{AtomicBool, Ordering};
+    use std::sync::mpsc;
+
+    use super::*;
+
+    /// A job that says when it runs, then waits to be released.
+    fn held(
+        pool: &Arc<Pool>,
+    ) -> (
+        tokio::task::JoinHandle<Result<(), AppError>>,
+        mpsc::Sender<()>,
+    ) {
+        let (started, wait_started) = mpsc::channel();
+        let (release, wait_release) = mpsc::channel::<()>();
+        let pool = pool.clone();
+        let job = tokio::spawn(async move {
+            pool.run(move || {
+                started.send(()).unwrap();
+                let _ = wait_release.recv();
+            })
+            .await
+        });
+        wait_started.recv().unwrap();
+        (job, release)
+    }
+
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn a_full_queue_is_refused_at_once() {
+        let pool = Arc::new(Pool::new(1, 0, Duration::from_secs(600)));
+        let (job, release) = held(&pool);
+        // The worker is busy and there is no queue: refused without waiting for it.
+        assert!(matches!(
+            pool.run(|| ()).await,
+            Err(AppError::Overloaded {
+                retry_after_secs: 1
+            })
+        ));
+        release.send(()).unwrap();
+        job.await.unwrap().unwrap();
+        assert_eq!(pool.run(|| 7).await.unwrap(), 7);
+    }
+
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn a_timed_out_job_keeps_its_permit_until_it_ends() {
+        let pool = Arc::new(Pool::new(1, 0, Duration::from_millis(20)));
+        let (job, release) = held(&pool);
+        // The job waits for the test, so the time limit passes first: the caller gets its
+        // answer ...
+        assert!(matches!(job.await.unwrap(), Err(AppError::Timeout(_))));
+        // ... while the job still runs and holds the only worker.
+        assert_eq!(pool.in_flight(), 1);
+        assert!(matches!(
+            pool.run(|| ()).await,
+            Err(AppError::Overloaded { .. })
+        ));
+        release.send(()).unwrap();
+        // Waits for the worker (so for the job's end), then a new job is admitted.
+        pool.run_background(|| ()).await.unwrap();
+        assert_eq!(pool.in_flight(), 0);
+        assert_eq!(pool.run(|| 7).await.unwrap(), 7);
+    }
+
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn a_job_whose_caller_has_gone_never_runs() {
+        let pool = Arc::new(Pool::new(1, 1, Duration::from_secs(600)));
+        let (first, release) = held(&pool);
+        let ran = Arc::new(AtomicBool::new(false));
+        let (flag, waiting) = (ran.clone(), pool.clone());
+        let gone = tokio::spawn(async move {
+            waiting
+                .run(move || flag.store(true, Ordering::SeqCst))
+                .await
+        });
+        // Admitted (it holds the queue slot) and waiting for the worker.
+        while pool.in_flight() < 2 {
+            tokio::task::yield_now().await;
+        }
+        gone.abort();
+        assert!(gone.await.unwrap_err().is_cancelled());
+        assert_eq!(pool.in_flight(), 1);
+        release.send(()).unwrap();
+        first.await.unwrap().unwrap();
+        pool.run_background(|| ()).await.unwrap();
+        assert!(!ran.load(Ordering::SeqCst));
+    }
+
+    #[tokio::test]
+    async fn a_panicking_job_is_an_internal_error() {
+        let pool = Pool::new(1, 0, Duration::from_secs(600));
+        let result = pool.run(|| -> () { panic!("a bug") }).await;
+        assert!(matches!(result, Err(AppError::Internal(_))), "{result:?}");
+        // The worker is free again.
+        assert_eq!(pool.run(|| 7).await.unwrap(), 7);
     }
 }

@@ -3,14 +3,15 @@
 use std::sync::Arc;
 use std::time::Instant;
 
-use axum::extract::rejection::{PathRejection, QueryRejection};
-use axum::extract::{Path, Query, State};
+use axum::extract::State;
 use axum::Json;
 use serde::{Deserialize, Serialize};
 
 use super::error::{AppError, ErrorBody};
-use super::upload::{check_id, MeshFile, MeshForm, MeshUpload, ModelPath};
+use super::models::no_model;
+use super::upload::{AppPath, AppQuery, MeshFile, MeshForm, MeshUpload, ModelPath};
 use super::AppState;
+use crate::model::ModelId;
 use crate::rank::{Method, Ranking};
 use crate::signature::Signature;
 
@@ -64,6 +65,9 @@ pub struct SearchResponse {
     /// Models whose exact distance was computed, and models rejected by a lower bound.
     pub evaluated: usize,
     pub pruned: usize,
+    /// Models left out because their stored signature lacks what the method compares; they
+    /// are being re-extracted (`GET /v1/admin/reindex`), and join the rankings when done.
+    pub left_out: usize,
     /// Salient features of the query.
     pub query_features: usize,
     pub timings: Timings,
@@ -71,14 +75,13 @@ pub struct SearchResponse {
 
 /// Ranks the catalog against `query` off the async threads.
 async fn rank(
-    state: &AppState,
-    query: Signature,
+    app: &AppState,
+    query: Arc<Signature>,
     q: SearchQuery,
-    exclude: Option<String>,
+    exclude: Option<ModelId>,
     clock: Instant,
     extract_ms: f64,
 ) -> Result<Json<SearchResponse>, AppError> {
-    let app = state.0.clone();
     let k = q.k.unwrap_or(10);
     if k == 0 || k > app.config.max_k {
         return Err(AppError::bad_request(
@@ -103,7 +106,7 @@ async fn rank(
     let results = app
         .read_catalog(move |catalog| {
             let keep = |id: &str| {
-                exclude.as_deref() != Some(id)
+                exclude.as_ref().is_none_or(|e| e.as_str() != id)
                     && tag
                         .as_ref()
                         .is_none_or(|t| catalog.records.get(id).is_some_and(|r| r.tags.contains(t)))
@@ -113,11 +116,12 @@ async fn rank(
                 evaluated,
                 pruned,
             } = catalog.index.search_with(&query, k, method, &params, &keep);
+            let left_out = catalog.index.incomparable(method, &keep);
             let results = hits
                 .into_iter()
                 .enumerate()
                 .map(|(i, hit)| {
-                    let record = catalog.records.get(&hit.id);
+                    let record = catalog.records.get(hit.id.as_str());
                     SearchHit {
                         rank: i + 1,
                         name: record.and_then(|r| r.name.clone()),
@@ -128,18 +132,19 @@ async fn rank(
                     }
                 })
                 .collect::<Vec<_>>();
-            (results, evaluated, pruned)
+            (results, evaluated, pruned, left_out)
         })
         .await?;
     let search_seconds = search_clock.elapsed().as_secs_f64();
     app.metrics.search_seconds.observe(search_seconds);
-    let (results, evaluated, pruned) = results;
+    let (results, evaluated, pruned, left_out) = results;
     Ok(Json(SearchResponse {
         method,
         k,
         results,
         evaluated,
         pruned,
+        left_out,
         query_features,
         timings: Timings {
             extract_ms,
@@ -175,15 +180,14 @@ async fn rank(
     )
 )]
 pub async fn search(
-    State(state): State<AppState>,
-    query: Result<Query<SearchQuery>, QueryRejection>,
+    State(app): State<AppState>,
+    AppQuery(q): AppQuery<SearchQuery>,
     upload: MeshUpload,
 ) -> Result<Json<SearchResponse>, AppError> {
-    let Query(q) = query?;
     let clock = Instant::now();
-    let signature = state.0.extract(Arc::new(upload.upload)).await?;
+    let signature = app.extract(Arc::new(upload.upload)).await?;
     let extract_ms = clock.elapsed().as_secs_f64() * 1e3;
-    rank(&state, signature, q, None, clock, extract_ms).await
+    rank(&app, Arc::new(signature), q, None, clock, extract_ms).await
 }
 
 /// The stored models most similar to a stored model (itself left out).
@@ -196,34 +200,31 @@ pub async fn search(
         (status = 200, description = "Ranked models", body = SearchResponse),
         (status = 400, description = "Bad id or query", body = ErrorBody),
         (status = 404, description = "No such model", body = ErrorBody),
-        (status = 409, description = "The model's signature predates the method's descriptor (run `salient reindex`)", body = ErrorBody)
+        (status = 409, description = "The model's stored signature lacks the method's descriptor; it is being re-extracted", body = ErrorBody)
     )
 )]
 pub async fn similar(
-    State(state): State<AppState>,
-    id: Result<Path<ModelPath>, PathRejection>,
-    query: Result<Query<SearchQuery>, QueryRejection>,
+    State(app): State<AppState>,
+    AppPath(path): AppPath<ModelPath>,
+    AppQuery(q): AppQuery<SearchQuery>,
 ) -> Result<Json<SearchResponse>, AppError> {
-    let id = id?.0.id;
-    let Query(q) = query?;
-    check_id(&id)?;
+    let id = path.id()?;
     let clock = Instant::now();
-    let signature = state
-        .0
+    let signature = app
         .catalog
-        .read()
-        .expect("catalog lock poisoned")
+        .snapshot()
         .index
-        .get(&id)
+        .get(id.as_str())
         .cloned()
-        .ok_or_else(|| AppError::NotFound(format!("no model {id:?}")))?;
+        .ok_or_else(|| no_model(&id))?;
     let method = q.method.unwrap_or_default();
     if !method.comparable(&signature) {
         return Err(AppError::Conflict(format!(
-            "model {id:?} was stored without the {method} descriptor; run `salient reindex`"
+            "model {:?} was stored without the {method} descriptor; it is re-extracted in the background (see GET /v1/admin/reindex; POST it to start)",
+            id.as_str()
         )));
     }
-    rank(&state, signature, q, Some(id), clock, 0.0).await
+    rank(&app, signature, q, Some(id), clock, 0.0).await
 }
 
 /// The signature of an uploaded mesh, stored nowhere.
@@ -251,8 +252,8 @@ pub async fn similar(
     )
 )]
 pub async fn extract(
-    State(state): State<AppState>,
+    State(app): State<AppState>,
     upload: MeshUpload,
 ) -> Result<Json<Signature>, AppError> {
-    Ok(Json(state.0.extract(Arc::new(upload.upload)).await?))
+    Ok(Json(app.extract(Arc::new(upload.upload)).await?))
 }

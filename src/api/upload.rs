@@ -8,9 +8,21 @@ use axum::extract::{FromRequest, Multipart, Request};
 use axum::http::header::CONTENT_TYPE;
 use serde::Deserialize;
 
+use axum::extract::FromRequestParts;
+
 use super::error::AppError;
 use crate::mesh::Format;
-use crate::store::Upload;
+use crate::model::{Fields, ModelId, Upload};
+
+/// `Path` with our rejection: a bad path is an [`AppError`] in the JSON shape.
+#[derive(FromRequestParts)]
+#[from_request(via(axum::extract::Path), rejection(AppError))]
+pub struct AppPath<T>(pub T);
+
+/// `Query` with our rejection.
+#[derive(FromRequestParts)]
+#[from_request(via(axum::extract::Query), rejection(AppError))]
+pub struct AppQuery<T>(pub T);
 
 /// Descriptive fields of a model, from the query string or multipart fields.
 #[derive(Debug, Clone, Default, Deserialize, utoipa::IntoParams)]
@@ -30,20 +42,30 @@ pub struct ModelFields {
 }
 
 impl ModelFields {
-    /// Tags, trimmed, empty ones dropped.
-    pub fn tag_list(&self) -> Vec<String> {
-        self.tags
-            .as_deref()
-            .unwrap_or("")
-            .split(',')
-            .map(str::trim)
-            .filter(|t| !t.is_empty())
-            .map(String::from)
-            .collect()
+    /// The model's id, if the upload names one.
+    pub fn id(&self) -> Result<Option<ModelId>, AppError> {
+        Ok(self.id.as_deref().map(ModelId::parse).transpose()?)
+    }
+
+    /// The descriptive fields; tags trimmed, empty ones dropped.
+    pub fn fields(&self) -> Fields {
+        Fields {
+            name: self.name.clone(),
+            tags: self
+                .tags
+                .as_deref()
+                .unwrap_or("")
+                .split(',')
+                .map(str::trim)
+                .filter(|t| !t.is_empty())
+                .map(String::from)
+                .collect(),
+            class: self.class.clone(),
+        }
     }
 }
 
-/// The `{id}` of a model's routes; the pattern states [`check_id`]'s rule in the API
+/// The `{id}` of a model's routes; the pattern states [`ModelId`]'s rule in the API
 /// description.
 #[derive(Debug, Deserialize, utoipa::IntoParams)]
 #[into_params(parameter_in = Path)]
@@ -51,6 +73,12 @@ pub struct ModelPath {
     /// Model id.
     #[param(pattern = "^[A-Za-z0-9_-][A-Za-z0-9._-]{0,127}$")]
     pub id: String,
+}
+
+impl ModelPath {
+    pub fn id(&self) -> Result<ModelId, AppError> {
+        Ok(ModelId::parse(&self.id)?)
+    }
 }
 
 /// A mesh file in a request body (documentation type for the OpenAPI description).
@@ -78,24 +106,6 @@ pub struct MeshForm {
 pub struct MeshUpload {
     pub upload: Upload,
     pub fields: ModelFields,
-}
-
-/// Checks a model id: it names keys and appears in URLs, so no separators, no leading dot.
-pub fn check_id(id: &str) -> Result<(), AppError> {
-    let valid = !id.is_empty()
-        && id.len() <= 128
-        && !id.starts_with('.')
-        && id
-            .bytes()
-            .all(|b| b.is_ascii_alphanumeric() || matches!(b, b'.' | b'_' | b'-'));
-    if valid {
-        Ok(())
-    } else {
-        Err(AppError::bad_request(
-            "invalid_id",
-            format!("invalid model id {id:?}: use 1–128 letters, digits, '.', '_' or '-', not starting with '.'"),
-        ))
-    }
 }
 
 fn format_named(name: &str) -> Result<Format, AppError> {
@@ -147,11 +157,7 @@ impl<S: Send + Sync> FromRequest<S> for MeshUpload {
             }
         };
         Ok(MeshUpload {
-            upload: Upload {
-                format,
-                mesh: body.to_vec(),
-                resources: BTreeMap::new(),
-            },
+            upload: Upload::new(format, body, BTreeMap::new()),
             fields: ModelFields {
                 format: None,
                 ..query
@@ -167,7 +173,7 @@ async fn from_multipart(
     mut multipart: Multipart,
     mut fields: ModelFields,
 ) -> Result<MeshUpload, AppError> {
-    let mut mesh: Option<(Format, Vec<u8>)> = None;
+    let mut mesh: Option<(Format, Bytes)> = None;
     let mut resources = BTreeMap::new();
     while let Some(field) = multipart.next_field().await? {
         let name = field.name().unwrap_or("").to_string();
@@ -184,7 +190,7 @@ async fn from_multipart(
                 *slot = Some(value);
             }
             (Some(file_name), _) => {
-                let bytes = field.bytes().await?.to_vec();
+                let bytes = field.bytes().await?;
                 match Format::from_extension(file_name.rsplit('.').next().unwrap_or("")) {
                     Some(format) if mesh.is_none() => mesh = Some((format, bytes)),
                     _ => {
@@ -210,11 +216,7 @@ async fn from_multipart(
         format = format_named(&name)?;
     }
     Ok(MeshUpload {
-        upload: Upload {
-            format,
-            mesh,
-            resources,
-        },
+        upload: Upload::new(format, mesh, resources),
         fields,
     })
 }

@@ -4,8 +4,8 @@ use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 
-use salient::extract::extract_path;
-use salient::signature::describe;
+use salient::pipeline::describe;
+use salient::pipeline::extract_path;
 use salient::similarity::compare;
 use salient::{Limits, Params, Signature};
 

@@ -6,8 +6,8 @@ use std::path::PathBuf;
 use glam::DVec3;
 use serde::Serialize;
 
-use salient::extract::extract_path;
-use salient::signature::describe;
+use salient::pipeline::describe;
+use salient::pipeline::extract_path;
 use salient::{Limits, Signature};
 
 #[derive(Debug, clap::Args)]

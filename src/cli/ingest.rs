@@ -21,7 +21,7 @@ use tokio::sync::Semaphore;
 use tokio::task::JoinSet;
 
 use salient::ingest::{self, parse_retry_after, Backoff, Item};
-use salient::store::Upload;
+use salient::model::Upload;
 
 #[derive(Debug, clap::Args)]
 pub struct Args {
@@ -175,7 +175,7 @@ impl Client {
             Ok(Err(e)) => return Outcome::Failed(e.to_string()),
             Err(e) => return Outcome::Failed(e.to_string()),
         };
-        match self.find(&upload.content_hash()).await {
+        match self.find(upload.content_hash()).await {
             Ok(Some(_)) => return Outcome::Skipped,
             Ok(None) => {}
             Err(reason) => return Outcome::Failed(reason),
@@ -211,7 +211,7 @@ impl Client {
 /// A multi-file glTF as a form: the document first (the server takes the first file with a
 /// mesh extension as the mesh), then each resource under the URI the document uses.
 fn form(upload: &Upload, file_name: String) -> Form {
-    let mesh = Part::bytes(upload.mesh.clone())
+    let mesh = Part::bytes(upload.mesh.to_vec())
         .file_name(file_name)
         .mime_str(upload.format.media_type())
         .expect("a valid media type");
@@ -221,7 +221,7 @@ fn form(upload: &Upload, file_name: String) -> Form {
         .fold(Form::new().part("file", mesh), |form, (uri, bytes)| {
             form.part(
                 "resource",
-                Part::bytes(bytes.clone()).file_name(uri.clone()),
+                Part::bytes(bytes.to_vec()).file_name(uri.clone()),
             )
         })
 }

@@ -1,15 +1,16 @@
-//! `salient reindex`: re-extract every stored model with the current parameters (after a
-//! parameter change; the store schema itself is migrated at open).
+//! `salient reindex`: re-extract the stale signatures of a store offline (the service does
+//! the same online: `POST /v1/admin/reindex`). Which signatures are stale is the one rule of
+//! `Signature::staleness`; the store schema itself is migrated at open.
 
 use std::path::PathBuf;
 
 use anyhow::Context;
 use indicatif::{ProgressBar, ProgressStyle};
 
-use salient::mesh::load_bytes;
-use salient::params::PARAMS_VERSION;
-use salient::signature::compute;
+use salient::pipeline::signature_of_file;
+use salient::signature::Signature;
 use salient::store::{SledStore, Store};
+use salient::Limits;
 
 #[derive(Debug, clap::Args)]
 pub struct Args {
@@ -19,6 +20,9 @@ pub struct Args {
     /// Parameters as JSON (default: the SPEC defaults).
     #[arg(long)]
     params: Option<PathBuf>,
+    /// Re-extract every model, stale or not.
+    #[arg(long)]
+    all: bool,
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
@@ -34,40 +38,48 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let progress = ProgressBar::new(records.len() as u64).with_style(
         ProgressStyle::with_template("{bar:40} {pos}/{len} {msg}").expect("a valid template"),
     );
-    let limits = salient::Limits {
-        max_input_vertices: usize::MAX,
-        max_input_triangles: usize::MAX,
-    };
-    let mut failed = 0;
+    let (mut renewed, mut current, mut failed) = (0, 0, 0);
     for mut record in records {
-        progress.set_message(record.id.clone());
+        progress.inc(1);
+        progress.set_message(record.id.to_string());
+        let id = record.id.as_str();
+        let stale = match store.signature(id)? {
+            Some(bytes) => {
+                Signature::from_bytes(&bytes).map_or(true, |s| s.staleness(&params).is_some())
+            }
+            None => true,
+        };
+        if !stale && !args.all {
+            current += 1;
+            continue;
+        }
         let upload = store
-            .upload(&record.id)?
-            .with_context(|| format!("model {} vanished", record.id))?;
-        let extracted = load_bytes(&upload.mesh, upload.format, &upload.resources, &limits)
-            .and_then(|raw| compute(&raw, &params));
+            .upload(id)?
+            .with_context(|| format!("model {id} vanished"))?;
+        let extracted = signature_of_file(
+            &upload.mesh,
+            upload.format,
+            &upload.resources,
+            &params,
+            &Limits::unlimited(),
+        );
         match extracted {
             Ok(signature) => {
-                let stats = &signature.stats.extraction.mesh;
-                record.vertices = stats.vertices;
-                record.triangles = stats.triangles;
-                record.features = signature.features.len();
-                record.params_version = PARAMS_VERSION;
-                record.updated_unix = std::time::SystemTime::now()
-                    .duration_since(std::time::UNIX_EPOCH)
-                    .map_or(0, |d| d.as_secs());
-                store.put(&record, &signature.to_bytes(), &upload)?;
+                record.describe(&signature);
+                store.update_signature(&record, &signature.to_bytes())?;
+                renewed += 1;
             }
             Err(error) => {
                 failed += 1;
-                progress.suspend(|| eprintln!("cannot re-extract {}: {error}", record.id));
+                progress.suspend(|| eprintln!("cannot re-extract {id}: {error}"));
             }
         }
-        progress.inc(1);
     }
     progress.finish_and_clear();
-    let total = store.len();
-    println!("re-extracted {} of {total} models", total - failed);
+    println!(
+        "re-extracted {renewed} of {} models ({current} were current)",
+        store.len()
+    );
     anyhow::ensure!(
         failed == 0,
         "{failed} models could not be re-extracted and keep their old signatures"

@@ -4,7 +4,7 @@ use std::path::PathBuf;
 
 use anyhow::Context;
 
-use salient::extract::extract_path;
+use salient::pipeline::extract_path;
 use salient::render::{render, save_png, Camera};
 use salient::salient::detect;
 use salient::Limits;

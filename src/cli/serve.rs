@@ -37,6 +37,9 @@ pub struct Args {
     /// Largest vertex count of an uploaded mesh (before welding).
     #[arg(long, env = "SALIENT_MAX_VERTICES")]
     max_vertices: Option<usize>,
+    /// Re-extract stale signatures in the background at start (`true` or `false`).
+    #[arg(long, env = "SALIENT_REINDEX_ON_START")]
+    reindex_on_start: Option<bool>,
     /// Origins allowed by CORS, comma-separated (`*` for any).
     #[arg(long, env = "SALIENT_CORS_ORIGINS", value_delimiter = ',')]
     cors_origins: Option<Vec<String>>,
@@ -58,6 +61,7 @@ impl Args {
         config.limits.max_input_vertices =
             a.max_vertices.unwrap_or(config.limits.max_input_vertices);
         config.cors_origins = a.cors_origins.unwrap_or(config.cors_origins);
+        config.reindex_on_start = a.reindex_on_start.unwrap_or(config.reindex_on_start);
         config.validate().map_err(anyhow::Error::msg)?;
         Ok(config)
     }
@@ -85,6 +89,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             .await
             .with_context(|| format!("cannot listen on {addr}"))?;
         let local = listener.local_addr()?;
+        app_state.start_background();
         // Tests and scripts read this line to find the port.
         println!("listening on http://{local}");
         tracing::info!(%local, models = app_state.0.catalog_len(), "serving");

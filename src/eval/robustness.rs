@@ -21,7 +21,7 @@ use crate::mesh::simplify::simplify_to_triangles;
 use crate::mesh::weld::bounds;
 use crate::mesh::{prepare, PreparedMesh, RawMesh};
 use crate::params::Params;
-use crate::signature::compute;
+use crate::pipeline::compute;
 use crate::similarity::compare;
 use crate::Result;
 

@@ -21,10 +21,10 @@ use super::report::{score, write, write_json, Table};
 use super::retrieval::{evaluate, DistanceMatrix};
 use super::{LabelledCollection, Progress};
 use crate::collection::{read, SignatureCache};
-use crate::extract::{extract_path, Extraction};
 use crate::params::{CandidateRule, HeightRule, Limits, Params, RegionRule};
+use crate::pipeline::{describe, extract_path, Extraction};
 use crate::rank::Method;
-use crate::signature::{describe, Signature};
+use crate::signature::Signature;
 use crate::Result;
 
 /// Held-out mAP a tuned value must gain over the default before the study recommends it,

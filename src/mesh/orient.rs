@@ -11,6 +11,7 @@ use super::topology::{face_neighbours, NO_FACE};
 
 /// What orientation found and changed.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(default)]
 pub struct OrientStats {
     /// Connected components (over manifold edges).
     pub components: usize,

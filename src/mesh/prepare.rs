@@ -30,6 +30,7 @@ pub struct PreparedMesh {
 
 /// Counts and timings of preparation, reported with every extraction.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
 pub struct PrepareStats {
     pub input_vertices: usize,
     pub input_triangles: usize,

@@ -1,9 +1,17 @@
 //! Welding and cleaning (SPEC §1.2).
 //!
-//! Exporters split vertices at UV and normal seams; geodesics need one vertex per position.
-//! The welded mesh is also put in a canonical order (vertices sorted by quantised position,
-//! triangles sorted), so the same surface gives the same mesh — and the same signature —
-//! whatever the file format, vertex order or face order it came in.
+//! Exporters split vertices at UV and normal seams, and STL files are triangle soups; float32
+//! round-off moves the copies of a vertex apart by ~1e-7 of the model's size. Geodesics need
+//! one vertex per position, so every vertex within the tolerance of another is merged with
+//! it, wherever the two fall on the grid. The welded mesh is also put in a canonical order
+//! (vertices along a Morton curve, triangles sorted), so the same surface gives the same mesh
+//! — and the same signature — whatever the file format, vertex order or face order it came in.
+//!
+//! Hand-written rather than a k-d tree crate: a uniform grid whose cell is the tolerance finds
+//! every pair within it in the 27 cells around a point, which is all a weld needs, and a
+//! union–find with the smallest member as root makes the result independent of input order.
+
+use std::collections::HashMap;
 
 use glam::DVec3;
 
@@ -19,8 +27,9 @@ pub struct Welded {
     pub duplicates_removed: usize,
 }
 
-/// Merges vertices whose positions agree after quantisation to `tolerance` × the bounding-box
-/// diagonal, then drops degenerate triangles (repeated vertex or zero area), duplicate
+/// Merges vertices closer than `tolerance` × the bounding-box diagonal (transitively: a chain
+/// of close copies becomes one vertex, at the position of its least member in coordinate
+/// order), then drops degenerate triangles (repeated vertex or zero area), duplicate
 /// triangles (the same three vertices in either winding) and unreferenced vertices.
 pub fn weld(raw: &RawMesh, tolerance: f64) -> Result<Welded> {
     if raw.triangles.is_empty() {
@@ -35,40 +44,23 @@ pub fn weld(raw: &RawMesh, tolerance: f64) -> Result<Welded> {
     if !(1e-100..=1e100).contains(&diagonal) {
         return Err(Error::ExtentOutOfRange { diagonal });
     }
-    let quantum = tolerance * diagonal;
-    let key = |p: DVec3| {
-        let q = ((p - min) / quantum).round();
-        (q.x as i64, q.y as i64, q.z as i64)
-    };
+    let root = merge_close(&raw.positions, min, tolerance * diagonal);
 
     // Canonical vertex order: along a Morton (Z-order) curve, so that vertices near in space
-    // are near in memory (extraction walks neighbourhoods), then by quantised key, then by
-    // exact coordinates so the representative kept for a cell does not depend on input order.
-    let mut order: Vec<u32> = (0..raw.positions.len() as u32).collect();
-    let exact = |i: u32| {
+    // are near in memory (extraction walks neighbourhoods), then by exact coordinates.
+    let mut kept: Vec<u32> = (0..raw.positions.len() as u32)
+        .filter(|&i| root[i as usize] == i)
+        .collect();
+    kept.sort_unstable_by_key(|&i| {
         let p = raw.positions[i as usize];
-        let k = key(p);
-        (
-            morton(p, min, max),
-            k,
-            p.x.to_bits(),
-            p.y.to_bits(),
-            p.z.to_bits(),
-        )
-    };
-    order.sort_unstable_by_key(|&i| exact(i));
-    let mut remap = vec![0u32; raw.positions.len()];
-    let mut positions = Vec::new();
-    let mut last_key = None;
-    for &i in &order {
-        let p = raw.positions[i as usize];
-        let k = key(p);
-        if last_key != Some(k) {
-            positions.push(p);
-            last_key = Some(k);
-        }
-        remap[i as usize] = positions.len() as u32 - 1;
+        (morton(p, min, max), coordinate_key(p))
+    });
+    let mut slot = vec![0u32; raw.positions.len()];
+    for (new, &old) in kept.iter().enumerate() {
+        slot[old as usize] = new as u32;
     }
+    let remap: Vec<u32> = root.iter().map(|&r| slot[r as usize]).collect();
+    let positions: Vec<DVec3> = kept.iter().map(|&i| raw.positions[i as usize]).collect();
 
     let area_floor = 1e-14 * diagonal * diagonal;
     let mut degenerate_removed = 0;
@@ -111,6 +103,117 @@ pub fn weld(raw: &RawMesh, tolerance: f64) -> Result<Welded> {
         triangles,
         degenerate_removed,
         duplicates_removed,
+    })
+}
+
+/// For each vertex, the root of the group it is merged into: the group's least member in
+/// [`coordinate_key`] order. Two vertices are merged when they lie within `quantum` of each
+/// other, or in the same cell of the grid of side `quantum` anchored at `min` (so a weld is
+/// linear in the vertex count whatever the input: no cell is compared with itself pairwise).
+fn merge_close(points: &[DVec3], min: DVec3, quantum: f64) -> Vec<u32> {
+    let cell = |i: u32| {
+        let c = ((points[i as usize] - min) / quantum).floor();
+        [c.x as i64, c.y as i64, c.z as i64]
+    };
+    let mut order: Vec<u32> = (0..points.len() as u32).collect();
+    order.sort_unstable_by_key(|&i| (cell(i), coordinate_key(points[i as usize]), i));
+    let mut runs: HashMap<[i64; 3], &[u32]> = HashMap::new();
+    for run in order.chunk_by(|&a, &b| cell(a) == cell(b)) {
+        runs.insert(cell(run[0]), run);
+    }
+
+    let mut groups = UnionFind::new(points);
+    for run in order.chunk_by(|&a, &b| cell(a) == cell(b)) {
+        for pair in run.windows(2) {
+            groups.union(pair[0], pair[1]);
+        }
+        let [x, y, z] = cell(run[0]);
+        // Each pair of neighbouring cells once: the 13 neighbours that follow in (x, y, z) order.
+        for (dx, dy, dz) in FORWARD {
+            let Some(other) = runs.get(&[x + dx, y + dy, z + dz]) else {
+                continue;
+            };
+            // Neighbouring cells crowded enough to make the pairwise test slow lie within
+            // two cell diagonals of each other: merged without it.
+            let close = run.len() * other.len() > MAX_PAIRS
+                || run.iter().any(|&a| {
+                    other.iter().any(|&b| {
+                        points[a as usize].distance_squared(points[b as usize]) <= quantum * quantum
+                    })
+                });
+            if close {
+                groups.union(run[0], other[0]);
+            }
+        }
+    }
+    (0..points.len() as u32).map(|i| groups.find(i)).collect()
+}
+
+/// Pairwise distance tests allowed between two neighbouring cells.
+const MAX_PAIRS: usize = 4096;
+
+/// Offsets of the neighbouring cells after a cell in lexicographic order.
+const FORWARD: [(i64, i64, i64); 13] = [
+    (0, 0, 1),
+    (0, 1, -1),
+    (0, 1, 0),
+    (0, 1, 1),
+    (1, -1, -1),
+    (1, -1, 0),
+    (1, -1, 1),
+    (1, 0, -1),
+    (1, 0, 0),
+    (1, 0, 1),
+    (1, 1, -1),
+    (1, 1, 0),
+    (1, 1, 1),
+];
+
+/// Disjoint sets of vertices whose root is always the least member by [`coordinate_key`]
+/// (ties by index), so the groups' representatives do not depend on the order of union.
+struct UnionFind<'a> {
+    parent: Vec<u32>,
+    points: &'a [DVec3],
+}
+
+impl<'a> UnionFind<'a> {
+    fn new(points: &'a [DVec3]) -> Self {
+        Self {
+            parent: (0..points.len() as u32).collect(),
+            points,
+        }
+    }
+
+    fn find(&mut self, mut i: u32) -> u32 {
+        while self.parent[i as usize] != i {
+            let grandparent = self.parent[self.parent[i as usize] as usize];
+            self.parent[i as usize] = grandparent;
+            i = grandparent;
+        }
+        i
+    }
+
+    fn union(&mut self, a: u32, b: u32) {
+        let (a, b) = (self.find(a), self.find(b));
+        let key = |i: u32| (coordinate_key(self.points[i as usize]), i);
+        match key(a).cmp(&key(b)) {
+            std::cmp::Ordering::Less => self.parent[b as usize] = a,
+            std::cmp::Ordering::Greater => self.parent[a as usize] = b,
+            std::cmp::Ordering::Equal => {}
+        }
+    }
+}
+
+/// A total order on positions (by x, then y, then z) that needs no float comparison.
+fn coordinate_key(p: DVec3) -> [u64; 3] {
+    // The IEEE bit pattern, with the sign folded in, orders like the numbers.
+    p.to_array().map(|c| {
+        let bits = c.to_bits();
+        if bits >> 63 == 1 {
+            !bits
+        } else {
+            bits | 1 << 63
+        }
     })
 }
 
@@ -255,5 +358,53 @@ mod tests {
             weld(&flat, 1e-6),
             Err(Error::OnlyDegenerate { count: 1 })
         ));
+    }
+
+    /// Two copies of a vertex a fifth of the tolerance either side of a grid line fall in
+    /// different cells; they must still become one vertex.
+    #[test]
+    fn copies_either_side_of_a_cell_boundary_merge() {
+        let tolerance = 1e-6;
+        let corners = [
+            DVec3::new(0.0, 0.0, 0.0),
+            DVec3::new(1.0, 0.0, 0.0),
+            DVec3::new(0.0, 1.0, 0.0),
+            DVec3::new(0.0, 0.0, 1.0),
+        ];
+        let (min, max) = bounds(&corners);
+        let quantum = tolerance * (max - min).length();
+        let line = min.x + 300_000.0 * quantum;
+        let inner = |dx: f64| DVec3::new(line + dx, 0.2, 0.2);
+        let (left, right) = (inner(-0.2 * quantum), inner(0.2 * quantum));
+        assert_ne!(
+            ((left - min) / quantum).floor().x,
+            ((right - min) / quantum).floor().x
+        );
+        // A fan of four triangles around the inner vertex, each with its own copy of it.
+        let mut raw = RawMesh {
+            positions: corners.to_vec(),
+            triangles: Vec::new(),
+        };
+        for (k, (a, b)) in [(0, 1), (1, 2), (2, 3), (3, 0)].into_iter().enumerate() {
+            raw.positions.push(if k % 2 == 0 { left } else { right });
+            let copy = raw.positions.len() as u32 - 1;
+            raw.triangles.push([a, b, copy]);
+        }
+        let welded = weld(&raw, tolerance).unwrap();
+        assert_eq!(welded.positions.len(), 5, "{:?}", welded.positions);
+    }
+
+    #[test]
+    fn far_vertices_stay_apart_and_order_does_not_matter() {
+        let raw = tetra_split();
+        let mut shuffled = raw.clone();
+        shuffled.positions.reverse();
+        let n = shuffled.positions.len() as u32;
+        for t in &mut shuffled.triangles {
+            *t = t.map(|v| n - 1 - v);
+        }
+        assert_eq!(weld(&shuffled, 1e-6).unwrap(), weld(&raw, 1e-6).unwrap());
+        // A tolerance below the corners' spacing keeps the four corners.
+        assert_eq!(weld(&raw, 0.05).unwrap().positions.len(), 4);
     }
 }

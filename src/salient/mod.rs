@@ -11,9 +11,9 @@ pub use region::{area, region, Region};
 
 use serde::{Deserialize, Serialize};
 
-use crate::extract::Extraction;
 use crate::geodesic::GeodesicScratch;
 use crate::params::{CandidateRule, Params, RegionRule};
+use crate::pipeline::Extraction;
 
 /// A salient point with its region.
 #[derive(Debug, Clone, PartialEq)]
@@ -27,6 +27,7 @@ pub struct SalientPoint {
 
 /// What detection counted (SPEC §3).
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
 pub struct SalientStats {
     pub kmeans_iterations: usize,
     /// Members of the candidate cluster.

@@ -1,85 +1,15 @@
 //! Persistent storage of models: records, signatures and the original files (SPEC §8).
 //!
 //! Behind a small trait so that the backend can change; [`SledStore`] is the default, as the
-//! product requires. Writes for one model are atomic and durable when they return: a model is
+//! product requires, and [`InMemoryStore`] serves tests and trials. Writes for one model are atomic and durable when they return: a model is
 //! either fully present (record, signature, files) or absent.
 
+mod memory;
 mod sled_store;
 
-use std::collections::BTreeMap;
-
-use serde::{Deserialize, Serialize};
-use sha2::{Digest, Sha256};
-
-use crate::mesh::Format;
-use crate::signature::hex;
-
+use crate::model::{ModelId, ModelRecord, Upload};
+pub use memory::InMemoryStore;
 pub use sled_store::SledStore;
-
-/// What the service knows about a stored model.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
-pub struct ModelRecord {
-    pub id: String,
-    pub name: Option<String>,
-    pub tags: Vec<String>,
-    pub class: Option<String>,
-    /// SHA-256 of the upload (the mesh file, then any glTF resources in name order):
-    /// identical uploads have identical hashes.
-    pub content_hash: String,
-    #[schema(value_type = String, example = "obj")]
-    pub format: Format,
-    /// SHA-256 of the mesh file's bytes in the blob store.
-    pub mesh_blob: String,
-    /// glTF resources (`uri` → blob SHA-256) uploaded with the mesh.
-    pub resources: BTreeMap<String, String>,
-    /// Vertices and triangles of the prepared mesh, and salient features found.
-    pub vertices: usize,
-    pub triangles: usize,
-    pub features: usize,
-    /// `PARAMS_VERSION` of the parameters the signature was made with.
-    pub params_version: u32,
-    /// Seconds since the Unix epoch.
-    pub created_unix: u64,
-    pub updated_unix: u64,
-}
-
-/// A file of an upload.
-#[derive(Debug, Clone, PartialEq)]
-pub struct Upload {
-    pub format: Format,
-    pub mesh: Vec<u8>,
-    /// glTF resources by the URI the document uses.
-    pub resources: BTreeMap<String, Vec<u8>>,
-}
-
-/// Lower-case hex SHA-256, the name of a blob.
-pub fn sha256_hex(bytes: &[u8]) -> String {
-    hex(&Sha256::digest(bytes))
-}
-
-impl Upload {
-    /// Blob names of the mesh and of each resource, as a record stores them.
-    pub fn blobs(&self) -> (String, BTreeMap<String, String>) {
-        let resources = self
-            .resources
-            .iter()
-            .map(|(uri, bytes)| (uri.clone(), sha256_hex(bytes)))
-            .collect();
-        (sha256_hex(&self.mesh), resources)
-    }
-
-    /// SHA-256 over the mesh bytes, then each resource's URI and bytes in URI order. For a
-    /// single file that is the plain SHA-256 of the file, which a client can compute itself.
-    pub fn content_hash(&self) -> String {
-        let mut hasher = Sha256::new();
-        hasher.update(&self.mesh);
-        for (uri, bytes) in &self.resources {
-            hasher.update(uri.as_bytes());
-            hasher.update(bytes);
-        }
-        hex(&hasher.finalize())
-    }
-}
 
 /// Errors of the storage layer.
 #[derive(Debug, thiserror::Error)]
@@ -112,6 +42,10 @@ pub trait Store: Send + Sync {
         signature: &[u8],
         upload: &Upload,
     ) -> StoreResult<Option<ModelRecord>>;
+    /// Replaces the record and signature of `record.id` if the model still holds the upload
+    /// `record.content_hash` names (re-extraction), atomically and durably. Returns false,
+    /// changing nothing, when the model was deleted or replaced meanwhile.
+    fn update_signature(&self, record: &ModelRecord, signature: &[u8]) -> StoreResult<bool>;
     fn get(&self, id: &str) -> StoreResult<Option<ModelRecord>>;
     fn signature(&self, id: &str) -> StoreResult<Option<Vec<u8>>>;
     /// The original upload of a model, for re-extraction.
@@ -121,7 +55,7 @@ pub trait Store: Send + Sync {
     /// Records in id order, starting after `after`, at most `limit`.
     fn list(&self, after: Option<&str>, limit: usize) -> StoreResult<Vec<ModelRecord>>;
     /// The id of the model holding an upload with this content hash.
-    fn find_content(&self, content_hash: &str) -> StoreResult<Option<String>>;
+    fn find_content(&self, content_hash: &str) -> StoreResult<Option<ModelId>>;
     /// Every model with its signature, in id order. Streamed: loading a large store holds one
     /// model's bytes at a time, not all of them (700 MB at 100 000 models).
     fn load_all(&self) -> Box<dyn Iterator<Item = StoreResult<Loaded>> + '_>;
@@ -129,4 +63,7 @@ pub trait Store: Send + Sync {
     fn is_empty(&self) -> bool {
         self.len() == 0
     }
+    /// A small value the service keeps between runs (the progress of a re-extraction).
+    fn state(&self, key: &str) -> StoreResult<Option<Vec<u8>>>;
+    fn set_state(&self, key: &str, value: &[u8]) -> StoreResult<()>;
 }

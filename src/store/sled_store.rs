@@ -10,7 +10,8 @@ use std::path::Path;
 use sled::transaction::{ConflictableTransactionError, TransactionalTree};
 use sled::Transactional;
 
-use super::{sha256_hex, Loaded, ModelRecord, StoreError, StoreResult, Upload};
+use super::{Loaded, StoreError, StoreResult};
+use crate::model::{sha256_hex, ModelId, ModelRecord, Upload};
 
 #[path = "../../migrations/mod.rs"]
 mod migrations;
@@ -22,7 +23,7 @@ pub fn schema_version() -> u32 {
 
 const VERSION_KEY: &[u8] = b"schema_version";
 
-/// A sled database with the trees of `migrations/v0001_initial.rs`.
+/// A sled database with the trees of `migrations/`.
 pub struct SledStore {
     db: sled::Db,
     models: sled::Tree,
@@ -30,6 +31,7 @@ pub struct SledStore {
     blobs: sled::Tree,
     blob_refs: sled::Tree,
     content: sled::Tree,
+    state: sled::Tree,
 }
 
 fn corrupt(key: &[u8], message: impl ToString) -> StoreError {
@@ -77,6 +79,7 @@ impl SledStore {
             blobs: db.open_tree("blobs")?,
             blob_refs: db.open_tree("blob_refs")?,
             content: db.open_tree("content")?,
+            state: db.open_tree("state")?,
             db,
         })
     }
@@ -168,12 +171,12 @@ fn unlink(
     old: &ModelRecord,
 ) -> Result<(), ConflictableTransactionError<StoreError>> {
     let (models, signatures, blobs, refs, content) = trees;
-    models.remove(old.id.as_bytes())?;
-    signatures.remove(old.id.as_bytes())?;
+    models.remove(old.id.as_str().as_bytes())?;
+    signatures.remove(old.id.as_str().as_bytes())?;
     for hash in blob_hashes(old) {
         release_blob(blobs, refs, hash)?;
     }
-    if content.get(&old.content_hash)?.as_deref() == Some(old.id.as_bytes()) {
+    if content.get(&old.content_hash)?.as_deref() == Some(old.id.as_str().as_bytes()) {
         content.remove(old.content_hash.as_bytes())?;
     }
     Ok(())
@@ -188,12 +191,12 @@ impl super::Store for SledStore {
     ) -> StoreResult<Option<ModelRecord>> {
         let encoded = serde_json::to_vec(record).expect("records serialise");
         let files: Vec<(String, &[u8])> =
-            std::iter::once((record.mesh_blob.clone(), upload.mesh.as_slice()))
+            std::iter::once((record.mesh_blob.clone(), &upload.mesh[..]))
                 .chain(
                     upload
                         .resources
                         .values()
-                        .map(|bytes| (sha256_hex(bytes), bytes.as_slice())),
+                        .map(|bytes| (sha256_hex(bytes), &bytes[..])),
                 )
                 .collect();
         let trees = (
@@ -206,9 +209,9 @@ impl super::Store for SledStore {
         let previous = trees
             .transaction(|view| {
                 let (models, signatures, blobs, refs, content) = view;
-                let previous = match models.get(record.id.as_bytes())? {
+                let previous = match models.get(record.id.as_str().as_bytes())? {
                     Some(bytes) => {
-                        let old = decode_record(record.id.as_bytes(), &bytes)
+                        let old = decode_record(record.id.as_str().as_bytes(), &bytes)
                             .map_err(ConflictableTransactionError::Abort)?;
                         unlink(view, &old)?;
                         Some(old)
@@ -218,14 +221,39 @@ impl super::Store for SledStore {
                 for (hash, bytes) in &files {
                     add_blob(blobs, refs, hash, bytes)?;
                 }
-                models.insert(record.id.as_bytes(), encoded.as_slice())?;
-                signatures.insert(record.id.as_bytes(), signature)?;
-                content.insert(record.content_hash.as_bytes(), record.id.as_bytes())?;
+                models.insert(record.id.as_str().as_bytes(), encoded.as_slice())?;
+                signatures.insert(record.id.as_str().as_bytes(), signature)?;
+                content.insert(
+                    record.content_hash.as_bytes(),
+                    record.id.as_str().as_bytes(),
+                )?;
                 Ok(previous)
             })
             .map_err(transaction_error)?;
         self.db.flush()?;
         Ok(previous)
+    }
+
+    fn update_signature(&self, record: &ModelRecord, signature: &[u8]) -> StoreResult<bool> {
+        let encoded = serde_json::to_vec(record).expect("records serialise");
+        let key = record.id.as_str().as_bytes();
+        let updated = (&self.models, &self.signatures)
+            .transaction(|(models, signatures)| {
+                let Some(bytes) = models.get(key)? else {
+                    return Ok(false);
+                };
+                let stored =
+                    decode_record(key, &bytes).map_err(ConflictableTransactionError::Abort)?;
+                if stored.content_hash != record.content_hash {
+                    return Ok(false);
+                }
+                models.insert(key, encoded.as_slice())?;
+                signatures.insert(key, signature)?;
+                Ok(true)
+            })
+            .map_err(transaction_error)?;
+        self.db.flush()?;
+        Ok(updated)
     }
 
     fn get(&self, id: &str) -> StoreResult<Option<ModelRecord>> {
@@ -243,10 +271,10 @@ impl super::Store for SledStore {
         let Some(record) = self.get(id)? else {
             return Ok(None);
         };
-        let blob = |hash: &str| -> StoreResult<Vec<u8>> {
+        let blob = |hash: &str| -> StoreResult<bytes::Bytes> {
             self.blobs
                 .get(hash)?
-                .map(|b| b.to_vec())
+                .map(|b| bytes::Bytes::copy_from_slice(&b))
                 .ok_or_else(|| corrupt(hash.as_bytes(), format!("blob of model {id} missing")))
         };
         let resources = record
@@ -254,11 +282,11 @@ impl super::Store for SledStore {
             .iter()
             .map(|(uri, hash)| Ok((uri.clone(), blob(hash)?)))
             .collect::<StoreResult<_>>()?;
-        Ok(Some(Upload {
-            format: record.format,
-            mesh: blob(&record.mesh_blob)?,
+        Ok(Some(Upload::new(
+            record.format,
+            blob(&record.mesh_blob)?,
             resources,
-        }))
+        )))
     }
 
     fn delete(&self, id: &str) -> StoreResult<Option<ModelRecord>> {
@@ -301,11 +329,16 @@ impl super::Store for SledStore {
             .collect()
     }
 
-    fn find_content(&self, content_hash: &str) -> StoreResult<Option<String>> {
-        Ok(self
-            .content
+    fn find_content(&self, content_hash: &str) -> StoreResult<Option<ModelId>> {
+        self.content
             .get(content_hash)?
-            .map(|id| String::from_utf8_lossy(&id).into_owned()))
+            .map(|id| {
+                std::str::from_utf8(&id)
+                    .ok()
+                    .and_then(|id| ModelId::parse(id).ok())
+                    .ok_or_else(|| corrupt(content_hash.as_bytes(), "not a model id"))
+            })
+            .transpose()
     }
 
     fn load_all(&self) -> Box<dyn Iterator<Item = StoreResult<Loaded>> + '_> {
@@ -323,5 +356,15 @@ impl super::Store for SledStore {
 
     fn len(&self) -> usize {
         self.models.len()
+    }
+
+    fn state(&self, key: &str) -> StoreResult<Option<Vec<u8>>> {
+        Ok(self.state.get(key)?.map(|v| v.to_vec()))
+    }
+
+    fn set_state(&self, key: &str, value: &[u8]) -> StoreResult<()> {
+        self.state.insert(key, value)?;
+        self.db.flush()?;
+        Ok(())
     }
 }

@@ -189,15 +189,15 @@ impl Resources for DirResources {
 }
 
 /// In-memory resources keyed by URI, e.g. the other parts of a multipart upload.
-impl Resources for HashMap<String, Vec<u8>> {
+impl<B: AsRef<[u8]>> Resources for HashMap<String, B> {
     fn get(&self, uri: &str) -> Option<Vec<u8>> {
-        HashMap::get(self, uri).cloned()
+        HashMap::get(self, uri).map(|b| b.as_ref().to_vec())
     }
 }
 
-impl Resources for std::collections::BTreeMap<String, Vec<u8>> {
+impl<B: AsRef<[u8]>> Resources for std::collections::BTreeMap<String, B> {
     fn get(&self, uri: &str) -> Option<Vec<u8>> {
-        std::collections::BTreeMap::get(self, uri).cloned()
+        std::collections::BTreeMap::get(self, uri).map(|b| b.as_ref().to_vec())
     }
 }
 

@@ -1,7 +1,7 @@
 //! Retrieval measures (SPEC §7) against rankings worked out by hand: the Princeton Shape
 //! Benchmark's NN, FT, ST, E, DCG, AP and the 11-point interpolated precision–recall curve.
 
-mod synthetic;
+use crate::synthetic;
 
 use salient::eval::metrics::Scores;
 use salient::eval::retrieval::{evaluate, DistanceMatrix};

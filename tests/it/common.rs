@@ -1,7 +1,4 @@
 //! Test support: a small glTF/GLB writer and mesh comparison helpers.
-//!
-//! Not every test binary that includes this module uses every helper.
-#![allow(dead_code)]
 
 use base64::Engine;
 use salient::mesh::RawMesh;

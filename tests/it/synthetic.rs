@@ -1,7 +1,7 @@
 //! Synthetic signatures for ranking tests and benchmarks: `classes` prototypes of salient
 //! features, and members that perturb a prototype and drop or repeat some of its features,
 //! so that, as in a real collection, models cluster by class.
-#![allow(dead_code)] // each test or bench binary uses a different subset
+#![allow(dead_code)] // the benches include this file and use a part of it
 
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -72,7 +72,9 @@ pub fn collection(count: usize, classes: usize, seed: u64) -> Vec<(String, Signa
                 features.push(extra);
             }
             let signature = Signature {
-                mesh_hash: format!("{i:064x}"),
+                mesh_hash: salient::signature::MeshHash(std::array::from_fn(|b| {
+                    (i >> (8 * (b % 8))) as u8
+                })),
                 features,
                 d2: histogram(&mut rng, 64),
                 lfd: None,

@@ -1,8 +1,7 @@
 //! The Light Field Descriptor baseline (SPEC §6; Chen et al. 2003) on generated shapes with
 //! known answers: invariances of its image features, the camera geometry, and distances.
 
-mod common;
-mod shapes;
+use crate::shapes;
 
 use glam::{DMat3, DVec3};
 use salient::descriptor::lfd::zernike::orders;

@@ -1,5 +1,4 @@
 //! Generated meshes with closed-form ECC (SPEC §2.4), shared by the integration tests.
-#![allow(dead_code)] // each test binary uses a different subset
 
 use std::collections::HashMap;
 use std::f64::consts::PI;

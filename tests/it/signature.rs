@@ -1,9 +1,9 @@
 //! Salient points, signatures and their comparison on generated shapes with known answers
 //! (SPEC §3–5).
 
-mod shapes;
+use crate::shapes;
 
-use salient::signature::compute;
+use salient::pipeline::compute;
 use salient::similarity::compare;
 use salient::{Error, Params, Signature};
 
@@ -110,8 +110,9 @@ fn binary_form_round_trips_compactly_and_refuses_garbage() {
         without_lfd.len()
     );
     assert!(without_lfd.len() < 4096);
-    // 100 images × (45 coefficients + a length byte) + the vector's length and `Some`.
-    assert_eq!(bytes.len() - without_lfd.len(), 100 * 46 + 1);
+    // The section's tag and length (1 + 2 bytes), then the vector's length and 100 images ×
+    // (45 coefficients + a length byte).
+    assert_eq!(bytes.len() - without_lfd.len(), 3 + 1 + 100 * 46);
     let back = Signature::from_bytes(&bytes).unwrap();
     assert_eq!(back.lfd, s.lfd);
     assert_eq!(back.mesh_hash, s.mesh_hash);
@@ -151,21 +152,24 @@ fn binary_form_round_trips_compactly_and_refuses_garbage() {
     assert_eq!(serde_json::from_str::<Signature>(&json).unwrap(), s);
 }
 
+/// Format 1 (release 0.1.0 before the light field descriptor) is format 2 without the
+/// optional descriptor at its end: cut from a golden format-2 file, it reads without one.
 #[test]
 fn format_1_signatures_read_without_a_light_field_descriptor() {
-    let s = signature(&shapes::cone(0.5, 12, 24));
+    let v2 = std::fs::read(crate::golden::golden().join("tetra.sig")).unwrap();
+    let s = Signature::from_bytes(&v2).unwrap();
     assert!(s.lfd.is_some());
-    // Format 1 was the record alone; format 2 appends the optional descriptor.
-    let mut v1 = Signature {
-        lfd: None,
-        ..s.clone()
-    }
-    .to_bytes();
-    assert_eq!(v1.pop(), Some(0), "`None` is one zero byte");
+    // `Some` (one byte) and the descriptor: its length and 100 × (length byte + 45 bytes).
+    let descriptor = 1 + 1 + 100 * 46;
+    let mut v1 = v2[..v2.len() - descriptor].to_vec();
     v1[4..6].copy_from_slice(&1u16.to_le_bytes());
     let old = Signature::from_bytes(&v1).unwrap();
     assert_eq!(old.lfd, None);
-    assert_eq!(old.features.len(), s.features.len());
+    assert_eq!(old.features, s.features);
+    assert_eq!(
+        old.staleness(&Params::default()),
+        Some(salient::signature::Staleness::Parameters)
+    );
     // Trailing bytes in a format-1 record, or a descriptor with images missing, are corrupt.
     let mut trailing = v1.clone();
     trailing.push(7);
@@ -177,12 +181,7 @@ fn format_1_signatures_read_without_a_light_field_descriptor() {
     json["lfd"].as_array_mut().unwrap().pop();
     let error = serde_json::from_value::<Signature>(json.clone()).unwrap_err();
     assert!(error.to_string().contains("100 images"), "{error}");
-    let mut short = Signature {
-        lfd: None,
-        ..s.clone()
-    }
-    .to_bytes();
-    short.pop();
+    let mut short = v2[..v2.len() - descriptor].to_vec();
     short.extend(postcard_descriptor(&json));
     assert!(matches!(
         Signature::from_bytes(&short),

@@ -1,5 +1,5 @@
 //! Runs the real `salient serve` binary on a loopback port for integration tests.
-#![allow(dead_code)] // each test binary uses a different subset
+#![allow(dead_code)] // the benches include this file and use a part of it
 
 use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};

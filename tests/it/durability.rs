@@ -1,14 +1,15 @@
 //! Crash safety of the store: kill -9 the server in the middle of an ingest, restart it, and
 //! every acknowledged model is there and whole; nothing half-written appears.
 
-mod server;
-mod shapes;
+use crate::server;
+use crate::shapes;
 
 use std::collections::BTreeSet;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 use reqwest::{Client, StatusCode};
+use salient::store::{SledStore, Store};
 use serde_json::Value;
 use server::{obj, Server};
 
@@ -24,10 +25,14 @@ async fn acknowledged_models_survive_a_kill_and_nothing_is_half_written() {
 
     for round in 0..3 {
         let mut server = Server::start(&store, &[]);
+        // Writers count their acknowledged writes here; the server is killed once a few
+        // went through in this round, while the others are in flight.
+        let (acked, mut progress) = tokio::sync::watch::channel(0usize);
         let writers: Vec<_> = (0..4)
             .map(|w| {
                 let (url, meshes) = (server.url.clone(), meshes.clone());
                 let (acknowledged, attempted) = (acknowledged.clone(), attempted.clone());
+                let acked = acked.clone();
                 tokio::spawn(async move {
                     let client = Client::new();
                     for i in 0.. {
@@ -42,6 +47,7 @@ async fn acknowledged_models_survive_a_kill_and_nothing_is_half_written() {
                         match sent {
                             Ok(r) if r.status() == StatusCode::CREATED => {
                                 acknowledged.lock().unwrap().insert(id);
+                                acked.send_modify(|n| *n += 1);
                             }
                             _ => break, // the server is gone
                         }
@@ -49,8 +55,11 @@ async fn acknowledged_models_survive_a_kill_and_nothing_is_half_written() {
                 })
             })
             .collect();
-        // Let writes pile up, then crash in the middle of them.
-        tokio::time::sleep(Duration::from_millis(700 + 300 * round)).await;
+        let enough = progress.wait_for(|n| *n >= 2 + round);
+        tokio::time::timeout(Duration::from_secs(120), enough)
+            .await
+            .expect("writes are acknowledged")
+            .unwrap();
         server.kill();
         for w in writers {
             w.await.unwrap();
@@ -97,6 +106,14 @@ async fn acknowledged_models_survive_a_kill_and_nothing_is_half_written() {
         .await
         .unwrap();
     assert_eq!(similar.status(), StatusCode::OK);
+    // And the original file of each, byte for byte, read from the store itself.
+    drop(server);
+    let store = SledStore::open(&store).unwrap();
+    for id in &listed {
+        let i: usize = id.rsplit('-').next().unwrap().parse().unwrap();
+        let upload = store.upload(id).unwrap().unwrap();
+        assert_eq!(upload.mesh, meshes[i % meshes.len()], "{id}");
+    }
     eprintln!(
         "{} acknowledged, {} stored after 3 kills",
         acknowledged.len(),

@@ -7,11 +7,11 @@
 //! along the chords out of the source, so its `α` is the chord slope: for those waves the
 //! half-angle an edge subtends (`h / 2R`) is added.
 
-mod shapes;
+use crate::shapes;
 
 use glam::DVec3;
-use salient::extract::{extract, Extraction};
 use salient::mesh::RawMesh;
+use salient::pipeline::{extract, Extraction};
 use salient::{HeightRule, Params};
 use std::f64::consts::FRAC_PI_2;
 
@@ -243,7 +243,7 @@ fn one_and_two_threads_give_identical_ecc() {
 fn obj_and_seam_split_glb_give_the_same_mesh_and_ecc() {
     let fixtures = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures");
     let load = |name: &str| {
-        salient::extract::extract_path(
+        salient::pipeline::extract_path(
             &fixtures.join(name),
             &Params::default(),
             &Default::default(),

@@ -1,7 +1,7 @@
 //! Ranking with the centroid bound returns exactly the top k of a full scan (SPEC §5).
 
-mod shapes;
-mod synthetic;
+use crate::shapes;
+use crate::synthetic;
 
 use salient::rank::{Index, Method};
 use salient::Params;
@@ -71,7 +71,7 @@ fn lfd_ranks_by_light_field_distance_and_skips_signatures_without_one() {
     ];
     let signatures: Vec<_> = meshes
         .iter()
-        .map(|(id, m)| (*id, salient::signature::compute(m, &params).unwrap()))
+        .map(|(id, m)| (*id, salient::pipeline::compute(m, &params).unwrap()))
         .collect();
     let mut index = Index::new(params.similarity.clone());
     for (id, s) in &signatures {

@@ -2,8 +2,8 @@
 //! goes in, a second run skips it, a corrupt file fails alone, and an overloaded server still
 //! gets everything thanks to retries. Also `salient health`, the container's health check.
 
-mod server;
-mod shapes;
+use crate::server;
+use crate::shapes;
 
 use std::path::Path;
 use std::process::{Command, Output};

@@ -1,40 +1,27 @@
 //! The sled store: migrations at open, refusal of newer stores, deduplicated files, and the
 //! `reindex` command.
 
-mod server;
-mod shapes;
-
-use std::collections::BTreeMap;
+use crate::server;
+use crate::shapes;
 
 use salient::mesh::Format;
-use salient::store::{sha256_hex, ModelRecord, SledStore, Store, StoreError, Upload};
+use salient::model::{sha256_hex, Fields, ModelId, ModelRecord, Upload};
+use salient::store::{SledStore, Store, StoreError};
 
+/// A record of `upload` under `id` (the store does not read the signature's content).
 fn record(id: &str, upload: &Upload) -> ModelRecord {
-    let (mesh_blob, resources) = upload.blobs();
-    ModelRecord {
-        id: id.into(),
-        name: None,
-        tags: vec![],
-        class: None,
-        content_hash: upload.content_hash(),
-        format: upload.format,
-        mesh_blob,
-        resources,
-        vertices: 4,
-        triangles: 4,
-        features: 1,
-        params_version: 1,
-        created_unix: 0,
-        updated_unix: 0,
-    }
+    let signature =
+        salient::pipeline::compute(&shapes::icosphere(1), &salient::Params::default()).unwrap();
+    ModelRecord::new(
+        ModelId::parse(id).unwrap(),
+        Fields::default(),
+        upload,
+        &signature,
+    )
 }
 
 fn upload(bytes: &[u8]) -> Upload {
-    Upload {
-        format: Format::Obj,
-        mesh: bytes.to_vec(),
-        resources: BTreeMap::new(),
-    }
+    Upload::single(Format::Obj, bytes.to_vec())
 }
 
 /// Version 0 is a store with no schema key (as sled leaves a new folder, or as a store
@@ -49,14 +36,21 @@ fn a_version_0_store_is_migrated_at_open() {
         assert_eq!(SledStore::stored_version(&db).unwrap(), 0);
     }
     let store = SledStore::open(dir.path()).unwrap();
-    assert_eq!(SledStore::stored_version(store.db()).unwrap(), 1);
+    assert_eq!(SledStore::stored_version(store.db()).unwrap(), 2);
     let names: Vec<_> = store
         .db()
         .tree_names()
         .into_iter()
         .map(|n| String::from_utf8(n.to_vec()).unwrap())
         .collect();
-    for tree in ["models", "signatures", "blobs", "blob_refs", "content"] {
+    for tree in [
+        "models",
+        "signatures",
+        "blobs",
+        "blob_refs",
+        "content",
+        "state",
+    ] {
         assert!(names.contains(&tree.to_string()), "{names:?}");
     }
     assert_eq!(
@@ -77,7 +71,7 @@ fn a_store_from_a_newer_salient_is_refused() {
     match reopen(dir.path()) {
         Err(StoreError::Incompatible {
             found: 99,
-            supported: 1,
+            supported: 2,
         }) => {}
         other => panic!("expected a refusal, got {:?}", other.map(|_| ())),
     }
@@ -93,7 +87,11 @@ fn files_are_deduplicated_and_released_with_their_last_model() {
     let blobs = store.db().open_tree("blobs").unwrap();
     assert_eq!(blobs.len(), 1);
     assert_eq!(
-        store.find_content(&a.content_hash()).unwrap().as_deref(),
+        store
+            .find_content(a.content_hash())
+            .unwrap()
+            .as_ref()
+            .map(ModelId::as_str),
         Some("two")
     );
 
@@ -161,11 +159,27 @@ async fn reindex_re_extracts_with_new_parameters() {
         String::from_utf8_lossy(&out.stderr)
     );
     assert!(String::from_utf8_lossy(&out.stdout).contains("re-extracted 2 of 2"));
+    // Now nothing is stale under those parameters: a second run renews nothing.
+    let again = std::process::Command::new(env!("CARGO_BIN_EXE_salient"))
+        .args(["reindex", "--data", data.to_str().unwrap()])
+        .args(["--params", params.to_str().unwrap()])
+        .output()
+        .unwrap();
+    assert!(
+        String::from_utf8_lossy(&again.stdout)
+            .contains("re-extracted 0 of 2 models (2 were current)"),
+        "{}",
+        String::from_utf8_lossy(&again.stdout)
+    );
     let store = SledStore::open(&data).unwrap();
     for loaded in store.load_all() {
         let loaded = loaded.unwrap();
         let signature = salient::Signature::from_bytes(&loaded.signature).unwrap();
         assert_eq!(signature.params.d2.samples, 500, "{}", loaded.record.id);
+        assert_eq!(
+            loaded.record.params_version,
+            salient::params::PARAMS_VERSION
+        );
     }
 }
 

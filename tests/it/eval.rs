@@ -1,7 +1,7 @@
 //! The evaluation harness end to end (SPEC §7) on generated collections: labels, the
 //! retrieval report files, robustness and pictures.
 
-mod shapes;
+use crate::shapes;
 
 use std::path::Path;
 use std::process::Command;
@@ -10,8 +10,8 @@ use glam::DVec3;
 use salient::eval::robustness::{self, FACE_FRACTIONS, NOISE_LEVELS};
 use salient::eval::study::{self, Change};
 use salient::eval::LabelledCollection;
-use salient::extract::extract;
 use salient::mesh::RawMesh;
+use salient::pipeline::extract;
 use salient::render::{render, Camera, POINT_COLOUR};
 use salient::salient::detect;
 use salient::{Error, Params};

@@ -1,0 +1,99 @@
+//! The in-memory view of the store that requests read: every record and the ranking index.
+//!
+//! Published as immutable snapshots behind an [`ArcSwap`]: a reader takes the current
+//! snapshot (an `Arc`, no lock) and keeps it for as long as it ranks, on whatever thread; a
+//! writer, already serialised with the store by the service's write mutex, builds the next
+//! snapshot from the current one and swaps it in. So a reader never waits for a writer, and
+//! no lock is ever held on an async thread. Records are a persistent map (`imbl`) and index
+//! entries are shared `Arc`s, so a new snapshot copies pointers, not signatures.
+
+use std::sync::Arc;
+
+use arc_swap::ArcSwap;
+
+use crate::model::{ModelId, ModelRecord};
+use crate::params::{Params, SimilarityParams};
+use crate::rank::Index;
+use crate::signature::Signature;
+
+/// One consistent state of the catalogue.
+#[derive(Clone)]
+pub struct Snapshot {
+    pub records: imbl::OrdMap<ModelId, Arc<ModelRecord>>,
+    pub index: Index,
+}
+
+impl Snapshot {
+    pub fn empty(similarity: SimilarityParams) -> Self {
+        Self {
+            records: imbl::OrdMap::new(),
+            index: Index::new(similarity),
+        }
+    }
+
+    /// Adds or replaces a model.
+    pub fn put(&mut self, record: ModelRecord, signature: impl Into<Arc<Signature>>) {
+        self.index.insert(record.id.clone(), signature);
+        self.records.insert(record.id.clone(), Arc::new(record));
+    }
+
+    /// The ids of models whose signature is stale under `params`, in id order, after `after`.
+    pub fn stale_after<'a>(
+        &'a self,
+        after: Option<&'a ModelId>,
+        params: &'a Params,
+    ) -> impl Iterator<Item = &'a ModelId> + 'a {
+        let start = after.map_or(std::ops::Bound::Unbounded, std::ops::Bound::Excluded);
+        let records = self
+            .records
+            .range::<_, ModelId>((start, std::ops::Bound::Unbounded))
+            .map(|(id, _)| id);
+        records.filter(|id| {
+            self.index
+                .get(id.as_str())
+                .is_some_and(|s| s.staleness(params).is_some())
+        })
+    }
+}
+
+/// The published snapshot and how to change it.
+pub struct Catalog {
+    current: ArcSwap<Snapshot>,
+}
+
+impl Catalog {
+    pub fn new(snapshot: Snapshot) -> Self {
+        Self {
+            current: ArcSwap::from_pointee(snapshot),
+        }
+    }
+
+    /// The current snapshot; it stays valid (and unchanged) for as long as it is held.
+    pub fn snapshot(&self) -> Arc<Snapshot> {
+        self.current.load_full()
+    }
+
+    /// Publishes a changed copy of the current snapshot and returns its number of models.
+    /// Callers serialise their writes (the service's write mutex), so no change is lost
+    /// between load and store.
+    fn update(&self, change: impl FnOnce(&mut Snapshot)) -> usize {
+        let mut next = Snapshot::clone(&self.current.load());
+        change(&mut next);
+        let len = next.records.len();
+        self.current.store(Arc::new(next));
+        len
+    }
+
+    /// Adds or replaces a model; returns the number of models.
+    pub fn put(&self, record: ModelRecord, signature: Signature) -> usize {
+        self.update(|s| s.put(record, signature))
+    }
+
+    /// Removes a model; returns the number of models.
+    pub fn remove(&self, id: &ModelId) -> usize {
+        self.update(|s| {
+            s.index.remove(id.as_str());
+            s.records.remove(id);
+        })
+    }
+}

@@ -1,0 +1,184 @@
+//! The pipeline, in one place: load → prepare (SPEC §1) → ECC of every vertex (§2) →
+//! salient points and regions (§3) → their D2 histograms and the global descriptors (§4, §6)
+//! → a [`Signature`], with the statistics and per-stage timings every extraction reports.
+//! Callers that need only the first stages (pictures, the parameter study) stop at
+//! [`extract`] and go on with [`describe`].
+
+use std::path::Path;
+use std::time::Instant;
+
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+use sha2::{Digest, Sha256};
+
+use crate::descriptor::{d2_histogram, LightFieldDescriptor};
+use crate::ecc::{self, EccField, EccStats};
+use crate::mesh::{self, Format, PrepareStats, PreparedMesh, RawMesh, Resources, Topology};
+use crate::params::{Limits, Params};
+use crate::salient;
+use crate::signature::{Feature, MeshHash, Signature, SignatureStats};
+use crate::Result;
+
+/// A prepared mesh with the ECC vector of each of its vertices.
+#[derive(Debug, Clone)]
+pub struct Extraction {
+    pub mesh: PreparedMesh,
+    pub topology: Topology,
+    pub ecc: EccField,
+    pub stats: ExtractionStats,
+}
+
+/// Everything an extraction counted and timed.
+/// Stored with every signature as JSON: a field added later takes its default in older ones.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct ExtractionStats {
+    pub load_seconds: f64,
+    pub mesh: PrepareStats,
+    pub topology_seconds: f64,
+    /// Mean edge length of the prepared mesh, in normalised units.
+    pub mean_edge_length: f64,
+    pub ecc: EccStats,
+    pub total_seconds: f64,
+}
+
+/// Loads `path` (format from its extension, or sniffed) and extracts.
+pub fn extract_path(path: &Path, params: &Params, limits: &Limits) -> Result<Extraction> {
+    let clock = Instant::now();
+    let raw = mesh::load_path(path, limits)?;
+    let load_seconds = clock.elapsed().as_secs_f64();
+    let mut extraction = extract(&raw, params)?;
+    extraction.stats.load_seconds = load_seconds;
+    extraction.stats.total_seconds += load_seconds;
+    Ok(extraction)
+}
+
+/// Prepares `raw` (SPEC §1) and computes the ECC of every vertex (SPEC §2).
+pub fn extract(raw: &RawMesh, params: &Params) -> Result<Extraction> {
+    params.validate()?;
+    let clock = Instant::now();
+    let mesh = mesh::prepare(raw, &params.mesh)?;
+    let topology_clock = Instant::now();
+    let topology = Topology::new(&mesh.positions, &mesh.triangles);
+    let topology_seconds = topology_clock.elapsed().as_secs_f64();
+    let ecc = ecc::compute(&mesh, &topology, &params.ecc);
+    let stats = ExtractionStats {
+        load_seconds: 0.0,
+        mesh: mesh.stats.clone(),
+        topology_seconds,
+        mean_edge_length: topology.mean_edge_length(),
+        ecc: ecc.stats.clone(),
+        total_seconds: clock.elapsed().as_secs_f64(),
+    };
+    Ok(Extraction {
+        mesh,
+        topology,
+        ecc,
+        stats,
+    })
+}
+
+/// The signature of a mesh file (with its glTF resources), in its stored form: what a query
+/// gets, so that it ranks exactly as the same model stored or searched offline.
+pub fn signature_of_file(
+    bytes: &[u8],
+    format: Format,
+    resources: &dyn Resources,
+    params: &Params,
+    limits: &Limits,
+) -> Result<Signature> {
+    let raw = mesh::load_bytes(bytes, format, resources, limits)?;
+    Signature::from_bytes(&compute(&raw, params)?.to_bytes())
+}
+
+/// Loads nothing: extracts the signature of an already loaded mesh.
+pub fn compute(raw: &RawMesh, params: &Params) -> Result<Signature> {
+    Ok(describe(&extract(raw, params)?, params))
+}
+
+/// Salient features and descriptors of an extraction (SPEC §3–4, §6).
+pub fn describe(extraction: &Extraction, params: &Params) -> Signature {
+    let mesh = &extraction.mesh;
+    let clock = Instant::now();
+    let (points, salient_stats) = salient::detect(extraction, params);
+    let salient_seconds = clock.elapsed().as_secs_f64();
+
+    // One PRNG stream per histogram, all seeded from the mesh: the same mesh gives the same
+    // samples on any machine and thread count (SPEC §4).
+    let clock = Instant::now();
+    let hash = mesh_hash(mesh);
+    let seed = u64::from_le_bytes(hash.0[..8].try_into().expect("a SHA-256 has 32 bytes"));
+    let rng = |stream: u64| {
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        rng.set_stream(stream);
+        rng
+    };
+    let d2 = &params.d2;
+    let region_range = 2.0 * params.ecc.local_size;
+    let features: Vec<Feature> = points
+        .par_iter()
+        .map(|point| {
+            let v = point.vertex as usize;
+            Feature {
+                vertex: point.vertex,
+                position: mesh.input_positions[v].to_array(),
+                position_normalized: mesh.positions[v].to_array(),
+                ecc: extraction.ecc.vector(v).to_vec(),
+                d2: d2_histogram(
+                    &point.region.triangles,
+                    d2.samples,
+                    d2.bins,
+                    region_range,
+                    &mut rng(point.vertex as u64),
+                ),
+                region_size: point.region_size,
+                region_area: point.region.area,
+            }
+        })
+        .collect();
+    let whole: Vec<_> = mesh
+        .triangles
+        .iter()
+        .map(|t| t.map(|v| mesh.positions[v as usize]))
+        .collect();
+    let global = d2_histogram(&whole, d2.samples, d2.bins, 2.0, &mut rng(u64::MAX));
+    let d2_seconds = clock.elapsed().as_secs_f64();
+
+    let clock = Instant::now();
+    let lfd = LightFieldDescriptor::compute(mesh);
+    let lfd_seconds = clock.elapsed().as_secs_f64();
+
+    let mut stats = SignatureStats {
+        extraction: extraction.stats.clone(),
+        salient: salient_stats,
+        salient_seconds,
+        d2_seconds,
+    };
+    stats.extraction.total_seconds += salient_seconds + d2_seconds + lfd_seconds;
+    Signature {
+        mesh_hash: hash,
+        features,
+        d2: global,
+        lfd: Some(lfd),
+        params: params.clone(),
+        stats,
+    }
+}
+
+/// SHA-256 over the prepared mesh's input-coordinate positions and triangles.
+fn mesh_hash(mesh: &PreparedMesh) -> MeshHash {
+    let mut hasher = Sha256::new();
+    for p in &mesh.input_positions {
+        for c in p.to_array() {
+            hasher.update(c.to_le_bytes());
+        }
+    }
+    for t in &mesh.triangles {
+        for v in t {
+            hasher.update(v.to_le_bytes());
+        }
+    }
+    MeshHash(hasher.finalize().into())
+}

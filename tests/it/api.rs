@@ -1,0 +1,546 @@
+//! The HTTP service in process (`tests/it/app.rs`): every endpoint and every error status
+//! (SPEC §8, `openapi.yaml`), real meshes.
+
+use axum::http::StatusCode;
+use serde_json::Value;
+
+use crate::app::{Form, TestApp, TestResponse};
+use crate::server::{fixture, obj};
+use crate::shapes;
+
+async fn json(response: TestResponse) -> Value {
+    response.json()
+}
+
+async fn expect_error(response: TestResponse, status: StatusCode, code: &str) {
+    crate::app::expect_error(&response, status, code);
+}
+
+#[tokio::test]
+async fn models_can_be_added_listed_read_replaced_and_deleted() {
+    let app = TestApp::new();
+
+    let horse = fixture("capod_horse_m155.obj");
+    let created = app
+        .add(
+            "id=horse&name=Horse&tags=animal,capod&class=horse",
+            "model/obj",
+            horse.clone(),
+        )
+        .await;
+    assert_eq!(created.status(), StatusCode::CREATED);
+    let record = json(created).await;
+    assert_eq!(record["id"], "horse");
+    assert_eq!(record["tags"], serde_json::json!(["animal", "capod"]));
+    assert_eq!(record["vertices"], 346);
+    assert!(record["features"].as_u64().unwrap() >= 1);
+
+    // The same upload again changes nothing; other content under the id replaces it.
+    let again = app
+        .add(
+            "id=horse&name=Horse&tags=animal,capod&class=horse",
+            "model/obj",
+            horse.clone(),
+        )
+        .await;
+    assert_eq!(again.status(), StatusCode::OK);
+    assert_eq!(json(again).await, record);
+    let star = obj(&shapes::star(3, &shapes::five_tips()));
+    let replaced = app
+        .add("id=horse&name=Star", "model/obj", star.clone())
+        .await;
+    assert_eq!(replaced.status(), StatusCode::OK);
+    let replaced = json(replaced).await;
+    assert_eq!(replaced["name"], "Star");
+    assert_eq!(replaced["created_unix"], record["created_unix"]);
+    assert_ne!(replaced["content_hash"], record["content_hash"]);
+
+    // Without an id: the id comes from the content hash, and identical content is found.
+    let glb = fixture("capod_horse_m155_split.glb");
+    let anonymous = json(
+        app.add("tags=split", "model/gltf-binary", glb.clone())
+            .await,
+    )
+    .await;
+    let id = anonymous["id"].as_str().unwrap().to_string();
+    assert_eq!(id.len(), 16);
+    let found = app.add("", "application/octet-stream", glb).await;
+    assert_eq!(found.status(), StatusCode::OK);
+    assert_eq!(json(found).await["id"], id.as_str());
+
+    let third = json(
+        app.add(
+            "id=cone&class=cone&tags=capod",
+            "model/obj",
+            obj(&shapes::cone(0.5, 30, 32)),
+        )
+        .await,
+    )
+    .await;
+    assert_eq!(third["class"], "cone");
+
+    // Listing: id order, pages, filters.
+    let page = json(app.get("/v1/models?limit=2").send().await).await;
+    let ids: Vec<&str> = page["models"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|m| m["id"].as_str().unwrap())
+        .collect();
+    assert_eq!(ids.len(), 2);
+    let next = page["next"].as_str().unwrap();
+    let rest = json(
+        app.get(format!("/v1/models?limit=2&after={next}"))
+            .send()
+            .await,
+    )
+    .await;
+    assert_eq!(rest["models"].as_array().unwrap().len(), 1);
+    assert!(rest["next"].is_null());
+    let tagged = json(app.get("/v1/models?tag=capod").send().await).await;
+    assert_eq!(tagged["models"].as_array().unwrap().len(), 1);
+    let by_class = json(app.get("/v1/models?class=cone").send().await).await;
+    assert_eq!(by_class["models"][0]["id"], "cone");
+    let hash = anonymous["content_hash"].as_str().unwrap();
+    let by_hash = json(
+        app.get(format!("/v1/models?content_hash={hash}"))
+            .send()
+            .await,
+    )
+    .await;
+    assert_eq!(by_hash["models"][0]["id"], id.as_str());
+
+    // One model, its signature.
+    let one = json(app.get("/v1/models/cone").send().await).await;
+    assert_eq!(one, third);
+    let signature = json(app.get("/v1/models/cone/signature").send().await).await;
+    assert_eq!(
+        signature["features"].as_array().unwrap().len() as u64,
+        third["features"].as_u64().unwrap()
+    );
+    assert_eq!(signature["params"]["ecc"]["waves"], 10);
+
+    // Delete.
+    let deleted = app.delete("/v1/models/cone").send().await;
+    assert_eq!(deleted.status(), StatusCode::NO_CONTENT);
+    expect_error(
+        app.get("/v1/models/cone").send().await,
+        StatusCode::NOT_FOUND,
+        "not_found",
+    )
+    .await;
+    expect_error(
+        app.delete("/v1/models/cone").send().await,
+        StatusCode::NOT_FOUND,
+        "not_found",
+    )
+    .await;
+    expect_error(
+        app.get("/v1/models/cone/signature").send().await,
+        StatusCode::NOT_FOUND,
+        "not_found",
+    )
+    .await;
+    let health = json(app.get("/healthz").send().await).await;
+    assert_eq!(health["models"], 2);
+}
+
+#[tokio::test]
+async fn multipart_uploads_carry_gltf_resources_and_fields() {
+    let app = TestApp::new();
+    let form = || {
+        Form::new()
+            .file("file", "tetra.gltf", fixture("gltf_external/tetra.gltf"))
+            .file("file", "tetra.bin", fixture("gltf_external/tetra.bin"))
+            .text("id", "tetra")
+            .text("tags", "solid, small")
+    };
+    let created = app.post("/v1/models").multipart(form()).send().await;
+    assert_eq!(created.status(), StatusCode::CREATED);
+    let record = json(created).await;
+    assert_eq!(record["format"], "gltf");
+    assert_eq!(record["tags"], serde_json::json!(["solid", "small"]));
+    assert!(record["resources"]["tetra.bin"].is_string());
+
+    // Without its buffer the glTF cannot be read.
+    let alone = Form::new().file("file", "tetra.gltf", fixture("gltf_external/tetra.gltf"));
+    expect_error(
+        app.post("/v1/models").multipart(alone).send().await,
+        StatusCode::BAD_REQUEST,
+        "bad_mesh",
+    )
+    .await;
+    let empty = Form::new().text("id", "nothing");
+    expect_error(
+        app.post("/v1/models").multipart(empty).send().await,
+        StatusCode::BAD_REQUEST,
+        "empty_body",
+    )
+    .await;
+}
+
+#[tokio::test]
+async fn bad_input_gets_the_right_status_and_the_server_keeps_serving() {
+    let app = TestApp::with_config(|config| {
+        config.max_body_bytes = 200_000;
+        config.limits.max_input_vertices = 5000;
+    });
+    let horse = fixture("capod_horse_m155.obj");
+
+    let big = vec![b'#'; 300_000];
+    expect_error(
+        app.add("id=big", "model/obj", big).await,
+        StatusCode::PAYLOAD_TOO_LARGE,
+        "payload_too_large",
+    )
+    .await;
+    let many = obj(&shapes::icosphere(4)); // 2 562 vertices, over --max-vertices
+    expect_error(
+        app.add("id=many", "model/obj", many).await,
+        StatusCode::PAYLOAD_TOO_LARGE,
+        "payload_too_large",
+    )
+    .await;
+    expect_error(
+        app.add("id=json", "application/json", b"{}".to_vec()).await,
+        StatusCode::UNSUPPORTED_MEDIA_TYPE,
+        "unsupported_format",
+    )
+    .await;
+    expect_error(
+        app.add(
+            "id=junk",
+            "application/octet-stream",
+            vec![0xde, 0xad, 0xbe, 0xef],
+        )
+        .await,
+        StatusCode::UNSUPPORTED_MEDIA_TYPE,
+        "unsupported_format",
+    )
+    .await;
+    expect_error(
+        app.add("id=x&format=fbx", "application/octet-stream", horse.clone())
+            .await,
+        StatusCode::UNSUPPORTED_MEDIA_TYPE,
+        "unsupported_format",
+    )
+    .await;
+    expect_error(
+        app.add("id=corrupt", "model/obj", b"v 0 0 0\nf 1 2 7\n".to_vec())
+            .await,
+        StatusCode::BAD_REQUEST,
+        "bad_mesh",
+    )
+    .await;
+    expect_error(
+        app.add(
+            "id=nan",
+            "model/obj",
+            b"v nan 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 2 3\nf 1 3 4\n".to_vec(),
+        )
+        .await,
+        StatusCode::BAD_REQUEST,
+        "bad_mesh",
+    )
+    .await;
+    expect_error(
+        app.add(
+            "id=flat",
+            "model/obj",
+            b"v 0 0 0\nv 1 0 0\nv 2 0 0\nf 1 2 3\n".to_vec(),
+        )
+        .await,
+        StatusCode::UNPROCESSABLE_ENTITY,
+        "unusable_mesh",
+    )
+    .await;
+    expect_error(
+        app.add(
+            "id=lines",
+            "model/obj",
+            b"v 0 0 0\nv 1 0 0\nl 1 2\n".to_vec(),
+        )
+        .await,
+        StatusCode::UNPROCESSABLE_ENTITY,
+        "unusable_mesh",
+    )
+    .await;
+    expect_error(
+        app.add("id=empty", "model/obj", Vec::new()).await,
+        StatusCode::BAD_REQUEST,
+        "empty_body",
+    )
+    .await;
+    for id in ["..", ".hidden", "a%2Fb", "a%20b", &"x".repeat(129)] {
+        expect_error(
+            app.add(&format!("id={id}"), "model/obj", horse.clone())
+                .await,
+            StatusCode::BAD_REQUEST,
+            "invalid_id",
+        )
+        .await;
+    }
+    for path in [
+        "/v1/models/..%2F..%2Fetc%2Fpasswd",
+        "/v1/models/..%5C..",
+        "/v1/models/a%5Cb/signature",
+    ] {
+        expect_error(
+            app.get(path).send().await,
+            StatusCode::BAD_REQUEST,
+            "invalid_id",
+        )
+        .await;
+    }
+    expect_error(
+        app.get("/v1/models?limit=abc").send().await,
+        StatusCode::BAD_REQUEST,
+        "invalid_query",
+    )
+    .await;
+    expect_error(
+        app.get("/v1/models?limit=0").send().await,
+        StatusCode::BAD_REQUEST,
+        "invalid_query",
+    )
+    .await;
+    let search = |query: &'static str| {
+        app.post(format!("/v1/search?{query}"))
+            .header("content-type", "model/obj")
+            .body(horse.clone())
+            .send()
+    };
+    expect_error(
+        search("k=0").await,
+        StatusCode::BAD_REQUEST,
+        "invalid_query",
+    )
+    .await;
+    expect_error(
+        search("k=-3").await,
+        StatusCode::BAD_REQUEST,
+        "invalid_query",
+    )
+    .await;
+    expect_error(
+        search("method=sh").await,
+        StatusCode::BAD_REQUEST,
+        "invalid_query",
+    )
+    .await;
+    expect_error(
+        search("w=2").await,
+        StatusCode::BAD_REQUEST,
+        "invalid_query",
+    )
+    .await;
+    expect_error(
+        app.get("/v1/nothing").send().await,
+        StatusCode::NOT_FOUND,
+        "not_found",
+    )
+    .await;
+
+    // Still serving, and nothing bad was stored.
+    assert_eq!(
+        app.add("id=horse", "model/obj", horse).await.status(),
+        StatusCode::CREATED
+    );
+    let all = json(app.get("/v1/models").send().await).await;
+    assert_eq!(all["models"].as_array().unwrap().len(), 1);
+}
+
+#[tokio::test]
+async fn search_similar_and_extract() {
+    let dir = tempfile::tempdir().unwrap();
+    let collection = dir.path().join("collection");
+    std::fs::create_dir_all(&collection).unwrap();
+    let app = TestApp::new();
+    let star = shapes::star(4, &shapes::five_tips());
+    let meshes = [
+        ("star", obj(&star), "tips"),
+        (
+            "moved",
+            obj(&shapes::transformed(&star, shapes::random_motion(3))),
+            "tips",
+        ),
+        (
+            "three",
+            obj(&shapes::star(4, &shapes::five_tips()[..3])),
+            "tips",
+        ),
+        ("cone", obj(&shapes::cone(0.5, 40, 48)), "plain"),
+        ("tube", obj(&shapes::tube(0.2, 60, 24)), "plain"),
+        ("horse", fixture("capod_horse_m155.obj"), "plain"),
+    ];
+    for (id, bytes, tag) in &meshes {
+        std::fs::write(collection.join(format!("{id}.obj")), bytes).unwrap();
+        let status = app
+            .add(&format!("id={id}&tags={tag}"), "model/obj", bytes.clone())
+            .await
+            .status();
+        assert_eq!(status, StatusCode::CREATED);
+    }
+    let query = obj(&shapes::star(
+        4,
+        &[
+            glam::DVec3::X,
+            glam::DVec3::Y,
+            glam::DVec3::Z,
+            -glam::DVec3::Z,
+        ],
+    ));
+    std::fs::write(dir.path().join("query.obj"), &query).unwrap();
+
+    for method in ["ecc", "d2", "lfd"] {
+        let response = app
+            .post(format!("/v1/search?k=6&method={method}"))
+            .header("content-type", "model/obj")
+            .body(query.clone())
+            .send()
+            .await;
+        assert_eq!(response.status(), StatusCode::OK);
+        let ranked = json(response).await;
+        let ids: Vec<String> = ranked["results"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|r| r["id"].as_str().unwrap().to_string())
+            .collect();
+        assert_eq!(ids.len(), 6);
+        assert_eq!(ranked["results"][0]["rank"], 1);
+        assert!(ranked["timings"]["extract_ms"].as_f64().unwrap() > 0.0);
+        let timing = |part: &str| ranked["timings"][part].as_f64().unwrap();
+        assert!(timing("search_ms") > 0.0);
+        // Extraction and ranking are disjoint parts of the request's time.
+        assert!(timing("total_ms") >= timing("extract_ms") + timing("search_ms"));
+
+        // The same ranking as the offline `salient search` on the same files.
+        let offline = std::process::Command::new(env!("CARGO_BIN_EXE_salient"))
+            .args([
+                "search",
+                dir.path().join("query.obj").to_str().unwrap(),
+                collection.to_str().unwrap(),
+                "-k",
+                "6",
+                "--json",
+                "--method",
+                method,
+            ])
+            .output()
+            .unwrap();
+        let offline: Value = serde_json::from_slice(&offline.stdout).unwrap();
+        let offline_ids: Vec<String> = offline["results"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|r| {
+                r["id"]
+                    .as_str()
+                    .unwrap()
+                    .trim_end_matches(".obj")
+                    .to_string()
+            })
+            .collect();
+        assert_eq!(ids, offline_ids, "{method}");
+        for (online, offline) in ranked["results"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .zip(offline["results"].as_array().unwrap())
+        {
+            assert_eq!(online["distance"], offline["distance"]);
+        }
+    }
+
+    // Filtered by tag; and similar-to-stored leaves the model itself out.
+    let tips = json(
+        app.post("/v1/search?tag=tips")
+            .header("content-type", "model/obj")
+            .body(query.clone())
+            .send()
+            .await,
+    )
+    .await;
+    assert!(tips["results"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .all(|r| r["tags"][0] == "tips"));
+    assert_eq!(tips["results"].as_array().unwrap().len(), 3);
+    let similar = json(app.get("/v1/models/star/similar?k=2").send().await).await;
+    assert_eq!(similar["results"][0]["id"], "moved");
+    assert_eq!(similar["results"].as_array().unwrap().len(), 2);
+    let weighted = json(app.get("/v1/models/star/similar?k=2&w=0.9").send().await).await;
+    assert_eq!(weighted["results"][0]["id"], "moved");
+    // `w` weighs the ECC distance against the region D2 distance: another weight, another
+    // distance (the same one would mean `w` was ignored).
+    assert_ne!(
+        weighted["results"][0]["distance"],
+        similar["results"][0]["distance"]
+    );
+    let by_views = json(
+        app.get("/v1/models/star/similar?k=2&method=lfd")
+            .send()
+            .await,
+    )
+    .await;
+    assert_eq!(by_views["method"], "lfd");
+    assert_eq!(by_views["results"][0]["id"], "moved");
+    expect_error(
+        app.get("/v1/models/nobody/similar").send().await,
+        StatusCode::NOT_FOUND,
+        "not_found",
+    )
+    .await;
+
+    // Extraction without storing.
+    let before = json(app.get("/healthz").send().await).await["models"].clone();
+    let signature = json(
+        app.post("/v1/extract")
+            .header("content-type", "model/obj")
+            .body(query)
+            .send()
+            .await,
+    )
+    .await;
+    assert_eq!(signature["features"].as_array().unwrap().len(), 4);
+    assert_eq!(
+        json(app.get("/healthz").send().await).await["models"],
+        before
+    );
+}
+
+#[tokio::test]
+async fn operations_endpoints() {
+    let app = TestApp::new();
+    for path in ["/healthz", "/readyz"] {
+        let status = json(app.get(path).send().await).await;
+        assert_eq!(status["status"], "ok");
+    }
+    app.add("id=horse", "model/obj", fixture("capod_horse_m155.obj"))
+        .await;
+    let metrics = app.get("/metrics").send().await.text();
+    assert!(metrics.contains("salient_models 1"), "{metrics}");
+    assert!(
+        metrics.contains(
+            "salient_http_requests_total{method=\"POST\",route=\"/v1/models\",status=\"201\"} 1"
+        ),
+        "{metrics}"
+    );
+    assert!(metrics.contains("salient_extraction_seconds_count 1"));
+    let spec = app.get("/openapi.yaml").send().await.text();
+    let committed = std::fs::read_to_string(
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("openapi.yaml"),
+    )
+    .unwrap();
+    assert_eq!(spec, committed);
+    let traced = app
+        .get("/healthz")
+        .header("x-request-id", "abc-123")
+        .send()
+        .await;
+    assert_eq!(traced.headers()["x-request-id"], "abc-123");
+    let fresh = app.get("/healthz").send().await;
+    assert!(fresh.headers().contains_key("x-request-id"));
+}
