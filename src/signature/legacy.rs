@@ -29,19 +29,7 @@ pub(super) fn decode(format: u16, body: &[u8]) -> Result<Signature> {
         .map_err(|_| corrupt("mesh hash is not 32 bytes".into()))?;
     Ok(Signature {
         mesh_hash: MeshHash(mesh_hash),
-        features: stored
-            .features
-            .into_iter()
-            .map(|f| Feature {
-                vertex: f.vertex,
-                position: f.position,
-                position_normalized: f.position_normalized.map(f64::from),
-                ecc: f.ecc.into_iter().map(f64::from).collect(),
-                d2: dequantise(&f.d2),
-                region_size: f.region_size.into(),
-                region_area: f.region_area.into(),
-            })
-            .collect(),
+        features: stored.features.into_iter().map(Feature::from).collect(),
         d2: dequantise(&stored.d2),
         lfd,
         params: upgrade(format, &stored.params)?,

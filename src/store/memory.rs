@@ -6,7 +6,7 @@ use std::sync::{Mutex, MutexGuard};
 
 use bytes::Bytes;
 
-use super::{Loaded, Store, StoreError, StoreResult};
+use super::{Loaded, Store, StoreResult};
 use crate::model::{sha256_hex, ModelId, ModelRecord, Upload};
 
 #[derive(Default)]
@@ -112,26 +112,10 @@ impl Store for InMemoryStore {
         let Some((record, _)) = inner.models.get(id) else {
             return Ok(None);
         };
-        let blob = |hash: &str| {
-            inner
-                .blobs
-                .get(hash)
-                .map(|(bytes, _)| bytes.clone())
-                .ok_or_else(|| StoreError::Corrupt {
-                    key: hash.to_string(),
-                    message: format!("blob of model {id} missing"),
-                })
-        };
-        let resources = record
-            .resources
-            .iter()
-            .map(|(uri, hash)| Ok((uri.clone(), blob(hash)?)))
-            .collect::<StoreResult<_>>()?;
-        Ok(Some(Upload::new(
-            record.format,
-            blob(&record.mesh_blob)?,
-            resources,
-        )))
+        super::assemble_upload(record, |hash| {
+            Ok(inner.blobs.get(hash).map(|(bytes, _)| bytes.clone()))
+        })
+        .map(Some)
     }
 
     fn delete(&self, id: &str) -> StoreResult<Option<ModelRecord>> {

@@ -7,6 +7,8 @@
 mod memory;
 mod sled_store;
 
+use bytes::Bytes;
+
 use crate::model::{ModelId, ModelRecord, Upload};
 pub use memory::InMemoryStore;
 pub use sled_store::SledStore;
@@ -25,6 +27,30 @@ pub enum StoreError {
 }
 
 pub type StoreResult<T> = Result<T, StoreError>;
+
+/// The upload `record` names, its files read by `blob` (SHA-256 → bytes); a file the record
+/// names but the store lacks means a damaged store.
+fn assemble_upload(
+    record: &ModelRecord,
+    blob: impl Fn(&str) -> StoreResult<Option<Bytes>>,
+) -> StoreResult<Upload> {
+    let read = |hash: &str| {
+        blob(hash)?.ok_or_else(|| StoreError::Corrupt {
+            key: hash.to_string(),
+            message: format!("blob of model {} missing", record.id),
+        })
+    };
+    let resources = record
+        .resources
+        .iter()
+        .map(|(uri, hash)| Ok((uri.clone(), read(hash)?)))
+        .collect::<StoreResult<_>>()?;
+    Ok(Upload::new(
+        record.format,
+        read(&record.mesh_blob)?,
+        resources,
+    ))
+}
 
 /// A stored model as the index needs it at start.
 pub struct Loaded {

@@ -271,22 +271,13 @@ impl super::Store for SledStore {
         let Some(record) = self.get(id)? else {
             return Ok(None);
         };
-        let blob = |hash: &str| -> StoreResult<bytes::Bytes> {
-            self.blobs
+        super::assemble_upload(&record, |hash| {
+            Ok(self
+                .blobs
                 .get(hash)?
-                .map(|b| bytes::Bytes::copy_from_slice(&b))
-                .ok_or_else(|| corrupt(hash.as_bytes(), format!("blob of model {id} missing")))
-        };
-        let resources = record
-            .resources
-            .iter()
-            .map(|(uri, hash)| Ok((uri.clone(), blob(hash)?)))
-            .collect::<StoreResult<_>>()?;
-        Ok(Some(Upload::new(
-            record.format,
-            blob(&record.mesh_blob)?,
-            resources,
-        )))
+                .map(|b| bytes::Bytes::copy_from_slice(&b)))
+        })
+        .map(Some)
     }
 
     fn delete(&self, id: &str) -> StoreResult<Option<ModelRecord>> {

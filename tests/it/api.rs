@@ -1,7 +1,12 @@
 //! The HTTP service in process (`tests/it/app.rs`): every endpoint and every error status
 //! (SPEC §8, `openapi.yaml`), real meshes.
 
+use std::sync::Arc;
+
 use axum::http::StatusCode;
+use salient::api::Config;
+use salient::model::{ModelId, ModelRecord, Upload};
+use salient::store::{InMemoryStore, Loaded, Store, StoreError, StoreResult};
 use serde_json::Value;
 
 use crate::app::{Form, TestApp, TestResponse};
@@ -543,4 +548,82 @@ async fn operations_endpoints() {
     assert_eq!(traced.headers()["x-request-id"], "abc-123");
     let fresh = app.get("/healthz").send().await;
     assert!(fresh.headers().contains_key("x-request-id"));
+}
+
+/// A store whose content index is damaged: every lookup fails with a detail (a path) that is
+/// for the server's log only.
+struct DamagedStore(InMemoryStore);
+
+const SECRET_DETAIL: &str = "/var/lib/salient/db: checksum mismatch";
+
+impl Store for DamagedStore {
+    fn put(&self, r: &ModelRecord, s: &[u8], u: &Upload) -> StoreResult<Option<ModelRecord>> {
+        self.0.put(r, s, u)
+    }
+    fn update_signature(&self, r: &ModelRecord, s: &[u8]) -> StoreResult<bool> {
+        self.0.update_signature(r, s)
+    }
+    fn get(&self, id: &str) -> StoreResult<Option<ModelRecord>> {
+        self.0.get(id)
+    }
+    fn signature(&self, id: &str) -> StoreResult<Option<Vec<u8>>> {
+        self.0.signature(id)
+    }
+    fn upload(&self, id: &str) -> StoreResult<Option<Upload>> {
+        self.0.upload(id)
+    }
+    fn delete(&self, id: &str) -> StoreResult<Option<ModelRecord>> {
+        self.0.delete(id)
+    }
+    fn list(&self, after: Option<&str>, limit: usize) -> StoreResult<Vec<ModelRecord>> {
+        self.0.list(after, limit)
+    }
+    fn find_content(&self, _: &str) -> StoreResult<Option<ModelId>> {
+        Err(StoreError::Corrupt {
+            key: "content".into(),
+            message: SECRET_DETAIL.into(),
+        })
+    }
+    fn load_all(&self) -> Box<dyn Iterator<Item = StoreResult<Loaded>> + '_> {
+        self.0.load_all()
+    }
+    fn len(&self) -> usize {
+        self.0.len()
+    }
+    fn state(&self, key: &str) -> StoreResult<Option<Vec<u8>>> {
+        self.0.state(key)
+    }
+    fn set_state(&self, key: &str, value: &[u8]) -> StoreResult<()> {
+        self.0.set_state(key, value)
+    }
+}
+
+/// An internal error is a 500 in the JSON shape that says what happened in general terms and
+/// where to look (the request id); its detail never reaches the client.
+#[tokio::test]
+async fn internal_errors_say_nothing_of_their_detail() {
+    let app = TestApp::build(
+        Config::default(),
+        Arc::new(DamagedStore(InMemoryStore::new())),
+        None,
+    );
+    let failed = app
+        .add("id=horse", "model/obj", fixture("capod_horse_m155.obj"))
+        .await;
+    expect_error(
+        failed.clone(),
+        StatusCode::INTERNAL_SERVER_ERROR,
+        "internal",
+    )
+    .await;
+    let text = failed.text();
+    assert!(
+        !text.contains("/var/lib") && !text.contains("checksum"),
+        "{text}"
+    );
+    assert!(failed.json()["error"]["message"]
+        .as_str()
+        .unwrap()
+        .contains("x-request-id"));
+    assert!(failed.headers().contains_key("x-request-id"));
 }

@@ -153,6 +153,7 @@ impl TestRequest<'_> {
 }
 
 /// A response, read whole.
+#[derive(Clone)]
 pub struct TestResponse {
     pub path: String,
     pub status: StatusCode,
