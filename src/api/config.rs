@@ -35,6 +35,27 @@ pub struct Config {
     pub limits: Limits,
     /// Extraction and similarity parameters of the stored signatures.
     pub params: Params,
+    /// File of hashed API keys (`SCOPE SHA256 LABEL` lines, from `salient keys new`), read
+    /// again on SIGHUP.
+    pub keys_file: Option<PathBuf>,
+    /// API keys as `SCOPE:KEY,…`: from the environment (`SALIENT_API_KEYS`) only, never from
+    /// the configuration file, and never printed.
+    #[serde(skip)]
+    pub inline_keys: Option<Secret>,
+    /// Serve without keys on an address that is not loopback (everyone may write).
+    pub allow_anonymous: bool,
+    /// `/metrics` without a key (for a scraper inside a trusted network).
+    pub metrics_open: bool,
+}
+
+/// A value that must not be printed: its `Debug` says only that it is there.
+#[derive(Clone, PartialEq, Eq)]
+pub struct Secret(pub String);
+
+impl std::fmt::Debug for Secret {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("Secret(..)")
+    }
 }
 
 impl Default for Config {
@@ -54,6 +75,10 @@ impl Default for Config {
                 max_input_triangles: 4_000_000,
             },
             params: Params::default(),
+            keys_file: None,
+            inline_keys: None,
+            allow_anonymous: false,
+            metrics_open: false,
         }
     }
 }
@@ -90,6 +115,14 @@ impl Config {
             message,
         })?;
         Ok(config)
+    }
+
+    /// The API keys of both sources (the environment's and the key file).
+    pub fn load_keys(&self) -> Result<super::auth::KeySet, super::auth::KeyError> {
+        super::auth::load_keys(
+            self.inline_keys.as_ref().map(|s| s.0.as_str()),
+            self.keys_file.as_deref(),
+        )
     }
 
     /// Checks the values no server can run with.

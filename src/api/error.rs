@@ -21,6 +21,12 @@ pub enum AppError {
     /// Malformed request: parameters, JSON, ids, a mesh file that does not parse.
     #[error("{message}")]
     BadRequest { code: &'static str, message: String },
+    /// No API key, or one that is not valid.
+    #[error("{0}")]
+    Unauthorized(String),
+    /// A valid key whose scope is too small.
+    #[error("{0}")]
+    Forbidden(String),
     #[error("{0}")]
     NotFound(String),
     /// The model exists but lacks what the request needs (a descriptor from a newer format).
@@ -79,6 +85,8 @@ impl AppError {
     fn status_and_code(&self) -> (StatusCode, &'static str) {
         match self {
             AppError::BadRequest { code, .. } => (StatusCode::BAD_REQUEST, code),
+            AppError::Unauthorized(_) => (StatusCode::UNAUTHORIZED, "unauthorized"),
+            AppError::Forbidden(_) => (StatusCode::FORBIDDEN, "forbidden"),
             AppError::NotFound(_) => (StatusCode::NOT_FOUND, "not_found"),
             AppError::Conflict(_) => (StatusCode::CONFLICT, "missing_descriptor"),
             AppError::PayloadTooLarge(_) => (StatusCode::PAYLOAD_TOO_LARGE, "payload_too_large"),
@@ -109,6 +117,12 @@ impl IntoResponse for AppError {
             AppError::Overloaded { retry_after_secs } => (
                 status,
                 [(header::RETRY_AFTER, retry_after_secs.to_string())],
+                body,
+            )
+                .into_response(),
+            AppError::Unauthorized(_) => (
+                status,
+                [(header::WWW_AUTHENTICATE, "Bearer realm=\"salient\"")],
                 body,
             )
                 .into_response(),

@@ -2,6 +2,7 @@
 //! a [`Store`], an in-memory [`Index`] of every stored signature, and the bounded extraction
 //! [`pool::Pool`]. Handlers only translate between HTTP and the library.
 
+pub mod auth;
 mod catalog;
 pub mod config;
 pub mod error;
@@ -17,9 +18,11 @@ use std::ops::Deref;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
+use arc_swap::ArcSwap;
 use axum::extract::{DefaultBodyLimit, MatchedPath, Request, State};
-use axum::http::{HeaderName, HeaderValue, Method};
+use axum::http::{header, HeaderName, HeaderValue, Method};
 use axum::middleware::{self, Next};
+use axum::response::IntoResponse;
 use axum::response::Response;
 use axum::Router;
 use tower_http::compression::CompressionLayer;
@@ -33,6 +36,7 @@ use crate::model::Upload;
 use crate::pipeline::signature_of_file;
 use crate::signature::{Signature, Staleness};
 use crate::store::{Store, StoreError};
+use auth::{required_scope, KeyError, KeySet};
 use catalog::{Catalog, Snapshot};
 pub use config::Config;
 use error::AppError;
@@ -69,6 +73,8 @@ pub struct App {
     /// Serialises writes so that the store and the catalogue change in the same order.
     writes: tokio::sync::Mutex<()>,
     reindex: reindex::Reindexer,
+    /// The API keys accepted now (replaced whole when the key file is read again).
+    keys: ArcSwap<KeySet>,
     /// Called on the ranking thread while it holds its catalogue snapshot (tests).
     ranking_hook: Option<Hook>,
 }
@@ -86,12 +92,21 @@ pub enum StartError {
         #[source]
         source: crate::Error,
     },
+    #[error("API keys: {0}")]
+    Keys(#[from] KeyError),
+    #[error("refusing to serve {0} without API keys: anyone who can reach it could add and delete models. Set SALIENT_API_KEYS=write:KEY (or admin:KEY), or pass --keys FILE (make a key with `salient keys new --scope write --label NAME --file FILE`); or, on a network you trust, --allow-anonymous")]
+    Anonymous(std::net::SocketAddr),
 }
 
 impl App {
     /// Loads every stored signature into the catalogue. Stale ones keep serving until they
     /// are re-extracted ([`App::start_background`]).
     pub fn new(config: Config, store: Arc<dyn Store>) -> Result<Self, StartError> {
+        let keys = config.load_keys()?;
+        // Safe by default: without keys, only this machine may reach the service.
+        if keys.is_empty() && !config.addr.ip().is_loopback() && !config.allow_anonymous {
+            return Err(StartError::Anonymous(config.addr));
+        }
         let mut snapshot = Snapshot::empty(config.params.similarity.clone());
         let (mut stale_parameters, mut missing_descriptor) = (0, 0);
         for loaded in store.load_all() {
@@ -139,8 +154,18 @@ impl App {
             metrics,
             writes: tokio::sync::Mutex::new(()),
             reindex,
+            keys: ArcSwap::from_pointee(keys),
             ranking_hook: None,
         })
+    }
+
+    /// Reads the API keys again (on SIGHUP), so that a key is revoked without a restart. A
+    /// file that cannot be used leaves the keys as they were. Returns the number of keys.
+    pub fn reload_keys(&self) -> Result<usize, KeyError> {
+        let keys = self.config.load_keys()?;
+        let count = keys.len();
+        self.keys.store(Arc::new(keys));
+        Ok(count)
     }
 
     /// Sets the hook called on the ranking thread while it holds its snapshot (tests).
@@ -257,6 +282,62 @@ impl App {
 )]
 struct ApiDoc;
 
+/// Adds the API-key scheme, and on every operation the scope [`auth::required_scope`] gives
+/// it with its 401 and 403 answers: the description follows the policy instead of repeating
+/// it. Applied to the whole document, once the routes are in it.
+fn describe_security(api: &mut utoipa::openapi::OpenApi) {
+    use utoipa::openapi::security::{
+        HttpAuthScheme, HttpBuilder, SecurityRequirement, SecurityScheme,
+    };
+    use utoipa::openapi::{ContentBuilder, Ref, ResponseBuilder};
+    let components = api.components.get_or_insert_with(Default::default);
+    components.add_security_scheme(
+        "api_key",
+        SecurityScheme::Http(
+            HttpBuilder::new()
+            .scheme(HttpAuthScheme::Bearer)
+            .description(Some(
+                "An API key, `Authorization: Bearer KEY`, with the scope the operation names (read, write, admin; each includes the ones before). A server without keys, on loopback or with --allow-anonymous, needs none.",
+            ))
+            .build(),
+        ),
+    );
+    let error = |description: &str| {
+        ResponseBuilder::new()
+            .description(description)
+            .content(
+                "application/json",
+                ContentBuilder::new()
+                    .schema(Some(Ref::from_schema_name("ErrorBody")))
+                    .build(),
+            )
+            .build()
+    };
+    for (path, item) in api.paths.paths.iter_mut() {
+        let operations = [
+            (Method::GET, &mut item.get),
+            (Method::POST, &mut item.post),
+            (Method::DELETE, &mut item.delete),
+        ];
+        for (method, operation) in operations {
+            let Some(operation) = operation else { continue };
+            let Some(scope) = required_scope(&method, path, false) else {
+                continue;
+            };
+            operation.security = Some(vec![SecurityRequirement::new(
+                "api_key",
+                [scope.to_string()],
+            )]);
+            let responses = &mut operation.responses.responses;
+            responses.insert("401".into(), error("No API key, or not a valid one").into());
+            responses.insert(
+                "403".into(),
+                error(&format!("The key's scope is below {scope}")).into(),
+            );
+        }
+    }
+}
+
 /// The routes and their OpenAPI description, from the same handler annotations.
 fn routes() -> OpenApiRouter<AppState> {
     OpenApiRouter::with_openapi(ApiDoc::openapi())
@@ -281,7 +362,8 @@ fn routes() -> OpenApiRouter<AppState> {
 
 /// The OpenAPI document of the service, as committed in `openapi.yaml`.
 pub fn openapi_yaml() -> String {
-    let (_, api) = routes().split_for_parts();
+    let (_, mut api) = routes().split_for_parts();
+    describe_security(&mut api);
     api.to_yaml().expect("the OpenAPI document serialises")
 }
 
@@ -299,10 +381,12 @@ pub fn app(state: AppState) -> Router {
                 .collect::<Vec<_>>(),
         ),
     }
-    .allow_methods([Method::GET, Method::POST, Method::DELETE]);
+    .allow_methods([Method::GET, Method::POST, Method::DELETE])
+    .allow_headers([header::AUTHORIZATION, header::CONTENT_TYPE]);
     let request_id = HeaderName::from_static("x-request-id");
     router
         .layer(DefaultBodyLimit::max(config.max_body_bytes))
+        .layer(middleware::from_fn_with_state(state.clone(), authorize))
         .layer(middleware::from_fn_with_state(
             state.clone(),
             count_requests,
@@ -329,7 +413,54 @@ fn request_span(request: &Request) -> tracing::Span {
         .get("x-request-id")
         .and_then(|v| v.to_str().ok())
         .unwrap_or("");
-    tracing::info_span!("request", method = %request.method(), route, request_id = id)
+    tracing::info_span!(
+        "request",
+        method = %request.method(),
+        route,
+        request_id = id,
+        key = tracing::field::Empty
+    )
+}
+
+/// Lets a request through if its key's scope covers what the route needs
+/// ([`auth::required_scope`]); a server without keys (loopback, or `--allow-anonymous`) lets
+/// everyone through. The key's label goes into the request's span, the key nowhere.
+async fn authorize(State(app): State<AppState>, request: Request, next: Next) -> Response {
+    let route = request
+        .extensions()
+        .get::<MatchedPath>()
+        .map(|p| p.as_str().to_string());
+    let needed = route
+        .as_deref()
+        .and_then(|route| required_scope(request.method(), route, app.config.metrics_open));
+    let keys = app.keys.load();
+    let Some(needed) = needed.filter(|_| !keys.is_empty()) else {
+        return next.run(request).await;
+    };
+    let presented = request
+        .headers()
+        .get(header::AUTHORIZATION)
+        .and_then(|v| v.to_str().ok())
+        .and_then(|v| v.split_once(' '))
+        .filter(|(scheme, _)| scheme.eq_ignore_ascii_case("bearer"))
+        .map(|(_, key)| key.trim());
+    let error = match presented.map(|key| keys.check(key)) {
+        None => AppError::Unauthorized(format!(
+            "this request needs an API key with the {needed} scope: send Authorization: Bearer KEY"
+        )),
+        Some(None) => AppError::Unauthorized("the API key is not valid".into()),
+        Some(Some((scope, label))) => {
+            tracing::Span::current().record("key", label);
+            if scope >= needed {
+                drop(keys);
+                return next.run(request).await;
+            }
+            AppError::Forbidden(format!(
+                "this request needs the {needed} scope; the key has {scope}"
+            ))
+        }
+    };
+    error.into_response()
 }
 
 /// Counts every request by route pattern and status for `/metrics`.

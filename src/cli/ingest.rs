@@ -48,6 +48,9 @@ pub struct Args {
     /// Time limit of one request, seconds (an upload includes the server's extraction).
     #[arg(long, default_value_t = 300)]
     timeout: u64,
+    /// API key with the write scope (sent as `Authorization: Bearer KEY`).
+    #[arg(long, env = "SALIENT_API_KEY", hide_env_values = true)]
+    api_key: Option<String>,
 }
 
 /// What happened to one file.
@@ -232,9 +235,17 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         .with_context(|| format!("cannot list the meshes in {}", args.dir.display()))?;
     let base = args.server.trim_end_matches('/').to_string();
     reqwest::Url::parse(&base).with_context(|| format!("invalid server URL {base:?}"))?;
+    let mut headers = reqwest::header::HeaderMap::new();
+    if let Some(key) = &args.api_key {
+        let mut value = reqwest::header::HeaderValue::from_str(&format!("Bearer {key}"))
+            .context("the API key is not a valid header value")?;
+        value.set_sensitive(true);
+        headers.insert(reqwest::header::AUTHORIZATION, value);
+    }
     let client = Arc::new(Client {
         http: reqwest::Client::builder()
             .timeout(Duration::from_secs(args.timeout))
+            .default_headers(headers)
             .build()
             .context("cannot start the HTTP client")?,
         base,

@@ -6,6 +6,7 @@ mod eval;
 mod extract;
 mod health;
 mod ingest;
+mod keys;
 mod reindex;
 mod render;
 mod search;
@@ -43,6 +44,8 @@ enum Command {
     Reindex(reindex::Args),
     /// Upload every mesh of a folder to a running service.
     Ingest(ingest::Args),
+    /// Make API keys for the service.
+    Keys(keys::Args),
     /// Check that a running service answers (exit code 0 if it does).
     Health(health::Args),
     /// Print the service's OpenAPI description (the committed `openapi.yaml`).
@@ -67,6 +70,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Serve(args) => serve::run(args),
         Command::Reindex(args) => reindex::run(args),
         Command::Ingest(args) => ingest::run(args),
+        Command::Keys(args) => keys::run(args),
         Command::Health(args) => health::run(args),
         Command::Openapi => {
             print!("{}", salient::api::openapi_yaml());

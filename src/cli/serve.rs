@@ -6,11 +6,13 @@ use std::sync::Arc;
 
 use anyhow::Context;
 
+use salient::api::config::Secret;
 use salient::api::{app, App, AppState, Config};
 use salient::store::SledStore;
 
 /// Flags override the environment (`SALIENT_*`), which overrides the configuration file,
-/// which overrides the defaults.
+/// which overrides the defaults. API keys come from `SALIENT_API_KEYS` (`SCOPE:KEY,…`; scopes
+/// read, write, admin) and from `--keys FILE`.
 #[derive(Debug, Clone, clap::Args)]
 pub struct Args {
     /// Address to listen on (port 0 picks a free one).
@@ -40,6 +42,16 @@ pub struct Args {
     /// Re-extract stale signatures in the background at start (`true` or `false`).
     #[arg(long, env = "SALIENT_REINDEX_ON_START")]
     reindex_on_start: Option<bool>,
+    /// File of hashed API keys (`SCOPE SHA256 LABEL` lines; `salient keys new` writes them),
+    /// read again on SIGHUP.
+    #[arg(long = "keys", env = "SALIENT_KEYS_FILE")]
+    keys_file: Option<PathBuf>,
+    /// Serve without API keys on an address that is not loopback: everyone may write.
+    #[arg(long, env = "SALIENT_ALLOW_ANONYMOUS", value_parser = clap::builder::BoolishValueParser::new(), num_args = 0..=1, default_missing_value = "true")]
+    allow_anonymous: Option<bool>,
+    /// Serve `/metrics` without a key.
+    #[arg(long, env = "SALIENT_METRICS_OPEN", value_parser = clap::builder::BoolishValueParser::new(), num_args = 0..=1, default_missing_value = "true")]
+    metrics_open: Option<bool>,
     /// Origins allowed by CORS, comma-separated (`*` for any).
     #[arg(long, env = "SALIENT_CORS_ORIGINS", value_delimiter = ',')]
     cors_origins: Option<Vec<String>>,
@@ -62,6 +74,12 @@ impl Args {
             a.max_vertices.unwrap_or(config.limits.max_input_vertices);
         config.cors_origins = a.cors_origins.unwrap_or(config.cors_origins);
         config.reindex_on_start = a.reindex_on_start.unwrap_or(config.reindex_on_start);
+        config.keys_file = a.keys_file.or(config.keys_file);
+        config.allow_anonymous = a.allow_anonymous.unwrap_or(config.allow_anonymous);
+        config.metrics_open = a.metrics_open.unwrap_or(config.metrics_open);
+        // Keys are secrets: the environment is the one place they come from, so that they
+        // appear in no command line (`ps`) and no configuration file.
+        config.inline_keys = std::env::var("SALIENT_API_KEYS").ok().map(Secret);
         config.validate().map_err(anyhow::Error::msg)?;
         Ok(config)
     }
@@ -90,6 +108,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             .with_context(|| format!("cannot listen on {addr}"))?;
         let local = listener.local_addr()?;
         app_state.start_background();
+        tokio::spawn(reload_keys_on_hangup(app_state.0.clone()));
         // Tests and scripts read this line to find the port.
         println!("listening on http://{local}");
         tracing::info!(%local, models = app_state.0.catalog_len(), "serving");
@@ -98,6 +117,27 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             .await
             .context("server failed")
     })
+}
+
+/// Reads the API keys again on every SIGHUP; a key file that cannot be used keeps the keys
+/// as they were.
+async fn reload_keys_on_hangup(app: Arc<App>) {
+    #[cfg(unix)]
+    {
+        use tokio::signal::unix::{signal, SignalKind};
+        let Ok(mut hangups) = signal(SignalKind::hangup()) else {
+            tracing::warn!("cannot listen for SIGHUP: API keys are read at start only");
+            return;
+        };
+        while hangups.recv().await.is_some() {
+            match app.reload_keys() {
+                Ok(keys) => tracing::info!(keys, "API keys read again"),
+                Err(error) => tracing::error!(%error, "API keys not read again; the old ones stay"),
+            }
+        }
+    }
+    #[cfg(not(unix))]
+    let _ = app;
 }
 
 /// Resolves on Ctrl-C or SIGTERM.

@@ -56,6 +56,11 @@ impl TestApp {
         self.request(Method::DELETE, path)
     }
 
+    /// A request with any method (`OPTIONS` for a CORS preflight).
+    pub fn request_with_method(&self, method: &str, path: impl Into<String>) -> TestRequest<'_> {
+        self.request(Method::from_bytes(method.as_bytes()).unwrap(), path)
+    }
+
     fn request(&self, method: Method, path: impl Into<String>) -> TestRequest<'_> {
         TestRequest {
             router: &self.router,
@@ -106,6 +111,11 @@ impl TestRequest<'_> {
     pub fn header(mut self, name: &str, value: &str) -> Self {
         self.headers.push((name.to_string(), value.to_string()));
         self
+    }
+
+    /// `Authorization: Bearer KEY`.
+    pub fn bearer(self, key: &str) -> Self {
+        self.header("authorization", &format!("Bearer {key}"))
     }
 
     pub fn body(mut self, body: impl Into<Vec<u8>>) -> Self {

@@ -14,6 +14,7 @@ mod shapes;
 mod synthetic;
 
 mod api;
+mod auth;
 mod cli;
 mod concurrency;
 mod durability;
