@@ -6,6 +6,7 @@ pub mod auth;
 mod catalog;
 pub mod config;
 pub mod error;
+mod files;
 mod metrics;
 mod models;
 mod ops;
@@ -344,9 +345,12 @@ fn routes() -> OpenApiRouter<AppState> {
         .routes(utoipa_axum::routes!(models::add_model, models::list_models))
         .routes(utoipa_axum::routes!(
             models::get_model,
-            models::delete_model
+            models::delete_model,
+            models::patch_model
         ))
         .routes(utoipa_axum::routes!(models::get_signature))
+        .routes(utoipa_axum::routes!(files::get_file))
+        .routes(utoipa_axum::routes!(files::get_resource))
         .routes(utoipa_axum::routes!(search::similar))
         .routes(utoipa_axum::routes!(search::search))
         .routes(utoipa_axum::routes!(search::extract))
@@ -381,7 +385,7 @@ pub fn app(state: AppState) -> Router {
                 .collect::<Vec<_>>(),
         ),
     }
-    .allow_methods([Method::GET, Method::POST, Method::DELETE])
+    .allow_methods([Method::GET, Method::POST, Method::PATCH, Method::DELETE])
     .allow_headers([header::AUTHORIZATION, header::CONTENT_TYPE]);
     let request_id = HeaderName::from_static("x-request-id");
     router

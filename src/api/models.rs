@@ -8,7 +8,9 @@ use axum::Json;
 use serde::{Deserialize, Serialize};
 
 use super::error::{AppError, ErrorBody};
-use super::upload::{AppPath, AppQuery, MeshFile, MeshForm, MeshUpload, ModelFields, ModelPath};
+use super::upload::{
+    AppJson, AppPath, AppQuery, MeshFile, MeshForm, MeshUpload, ModelFields, ModelPath,
+};
 use super::AppState;
 use crate::model::{ModelId, ModelRecord};
 use crate::signature::Signature;
@@ -248,4 +250,85 @@ pub async fn get_signature(
         .get(id.as_str())
         .ok_or_else(|| no_model(&id))?;
     Ok(Json(signature.clone()))
+}
+
+/// `null` and a value are different things in a patch: `null` clears, absent keeps.
+fn present<'de, D: serde::Deserializer<'de>, T: Deserialize<'de>>(
+    deserializer: D,
+) -> Result<Option<T>, D::Error> {
+    T::deserialize(deserializer).map(Some)
+}
+
+/// The fields `PATCH /v1/models/{id}` changes; those left out keep their value.
+#[derive(Debug, Deserialize, utoipa::ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct ModelPatch {
+    /// A new name; `null` removes it.
+    #[serde(default, deserialize_with = "present")]
+    #[schema(value_type = Option<String>)]
+    pub name: Option<Option<String>>,
+    /// The new tags (all of them).
+    pub tags: Option<Vec<String>>,
+    /// A new class; `null` removes it.
+    #[serde(default, deserialize_with = "present")]
+    #[schema(value_type = Option<String>)]
+    pub class: Option<Option<String>>,
+}
+
+/// Change a model's name, tags or class. Its shape is untouched: nothing is re-extracted.
+#[utoipa::path(
+    patch,
+    path = "/v1/models/{id}",
+    tag = "models",
+    params(ModelPath),
+    request_body(content = ModelPatch, content_type = "application/json"),
+    responses(
+        (status = 200, description = "The changed model", body = ModelRecord),
+        (status = 400, description = "Invalid id or body", body = ErrorBody),
+        (status = 404, description = "No such model", body = ErrorBody),
+        (status = 415, description = "The body is not JSON", body = ErrorBody)
+    )
+)]
+pub async fn patch_model(
+    State(app): State<AppState>,
+    AppPath(path): AppPath<ModelPath>,
+    AppJson(body): AppJson<serde_json::Map<String, serde_json::Value>>,
+) -> Result<Json<ModelRecord>, AppError> {
+    let id = path.id()?;
+    // Through a JSON object: serde would also read a struct from an array, by position.
+    let patch: ModelPatch = serde_json::from_value(serde_json::Value::Object(body))
+        .map_err(|e| AppError::bad_request("invalid_json", e.to_string()))?;
+    let _write = app.writes.lock().await;
+    let snapshot = app.catalog.snapshot();
+    let (Some(current), Some(signature)) =
+        (snapshot.records.get(&id), snapshot.index.get(id.as_str()))
+    else {
+        return Err(no_model(&id));
+    };
+    let mut record = ModelRecord::clone(current);
+    let signature = Signature::clone(signature);
+    drop(snapshot);
+    if let Some(name) = patch.name {
+        record.name = name;
+    }
+    if let Some(tags) = patch.tags {
+        record.tags = tags
+            .iter()
+            .map(|t| t.trim().to_string())
+            .filter(|t| !t.is_empty())
+            .collect();
+    }
+    if let Some(class) = patch.class {
+        record.class = class;
+    }
+    record.updated_unix = crate::model::now_unix();
+    let (stored, bytes) = (record.clone(), signature.to_bytes());
+    let updated = app
+        .with_store(move |store| store.update_model(&stored, &bytes))
+        .await?;
+    if !updated {
+        return Err(no_model(&id));
+    }
+    app.catalog.put(record.clone(), signature);
+    Ok(Json(record))
 }

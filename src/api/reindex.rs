@@ -221,7 +221,7 @@ async fn reextract(app: &Arc<App>, id: &ModelId) -> Result<(), String> {
     record.describe(&signature);
     let (stored, bytes) = (record.clone(), signature.to_bytes());
     let updated = app
-        .with_store(move |store| store.update_signature(&stored, &bytes))
+        .with_store(move |store| store.update_model(&stored, &bytes))
         .await
         .map_err(hidden)?;
     if updated {

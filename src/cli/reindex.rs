@@ -66,7 +66,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         match extracted {
             Ok(signature) => {
                 record.describe(&signature);
-                store.update_signature(&record, &signature.to_bytes())?;
+                store.update_model(&record, &signature.to_bytes())?;
                 renewed += 1;
             }
             Err(error) => {

@@ -88,7 +88,7 @@ impl Store for InMemoryStore {
         Ok(previous)
     }
 
-    fn update_signature(&self, record: &ModelRecord, signature: &[u8]) -> StoreResult<bool> {
+    fn update_model(&self, record: &ModelRecord, signature: &[u8]) -> StoreResult<bool> {
         let mut inner = self.lock();
         match inner.models.get_mut(&record.id) {
             Some(stored) if stored.0.content_hash == record.content_hash => {
@@ -116,6 +116,10 @@ impl Store for InMemoryStore {
             Ok(inner.blobs.get(hash).map(|(bytes, _)| bytes.clone()))
         })
         .map(Some)
+    }
+
+    fn blob(&self, hash: &str) -> StoreResult<Option<Bytes>> {
+        Ok(self.lock().blobs.get(hash).map(|(bytes, _)| bytes.clone()))
     }
 
     fn delete(&self, id: &str) -> StoreResult<Option<ModelRecord>> {

@@ -69,13 +69,16 @@ pub trait Store: Send + Sync {
         upload: &Upload,
     ) -> StoreResult<Option<ModelRecord>>;
     /// Replaces the record and signature of `record.id` if the model still holds the upload
-    /// `record.content_hash` names (re-extraction), atomically and durably. Returns false,
-    /// changing nothing, when the model was deleted or replaced meanwhile.
-    fn update_signature(&self, record: &ModelRecord, signature: &[u8]) -> StoreResult<bool>;
+    /// `record.content_hash` names (a re-extraction, an edit of its fields), atomically and
+    /// durably. Returns false, changing nothing, when the model was deleted or replaced
+    /// meanwhile.
+    fn update_model(&self, record: &ModelRecord, signature: &[u8]) -> StoreResult<bool>;
     fn get(&self, id: &str) -> StoreResult<Option<ModelRecord>>;
     fn signature(&self, id: &str) -> StoreResult<Option<Vec<u8>>>;
     /// The original upload of a model, for re-extraction.
     fn upload(&self, id: &str) -> StoreResult<Option<Upload>>;
+    /// One stored file by its SHA-256 (a record's `mesh_blob` or one of its `resources`).
+    fn blob(&self, hash: &str) -> StoreResult<Option<Bytes>>;
     /// Removes a model and the files no other model uses. Returns the removed record.
     fn delete(&self, id: &str) -> StoreResult<Option<ModelRecord>>;
     /// Records in id order, starting after `after`, at most `limit`.

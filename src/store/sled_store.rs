@@ -234,7 +234,7 @@ impl super::Store for SledStore {
         Ok(previous)
     }
 
-    fn update_signature(&self, record: &ModelRecord, signature: &[u8]) -> StoreResult<bool> {
+    fn update_model(&self, record: &ModelRecord, signature: &[u8]) -> StoreResult<bool> {
         let encoded = serde_json::to_vec(record).expect("records serialise");
         let key = record.id.as_str().as_bytes();
         let updated = (&self.models, &self.signatures)
@@ -271,13 +271,14 @@ impl super::Store for SledStore {
         let Some(record) = self.get(id)? else {
             return Ok(None);
         };
-        super::assemble_upload(&record, |hash| {
-            Ok(self
-                .blobs
-                .get(hash)?
-                .map(|b| bytes::Bytes::copy_from_slice(&b)))
-        })
-        .map(Some)
+        super::assemble_upload(&record, |hash| self.blob(hash)).map(Some)
+    }
+
+    fn blob(&self, hash: &str) -> StoreResult<Option<bytes::Bytes>> {
+        Ok(self
+            .blobs
+            .get(hash)?
+            .map(|b| bytes::Bytes::copy_from_slice(&b)))
     }
 
     fn delete(&self, id: &str) -> StoreResult<Option<ModelRecord>> {

@@ -3,6 +3,7 @@
 
 use std::sync::Arc;
 
+use axum::body::Bytes;
 use axum::http::StatusCode;
 use salient::api::Config;
 use salient::model::{ModelId, ModelRecord, Upload};
@@ -560,8 +561,8 @@ impl Store for DamagedStore {
     fn put(&self, r: &ModelRecord, s: &[u8], u: &Upload) -> StoreResult<Option<ModelRecord>> {
         self.0.put(r, s, u)
     }
-    fn update_signature(&self, r: &ModelRecord, s: &[u8]) -> StoreResult<bool> {
-        self.0.update_signature(r, s)
+    fn update_model(&self, r: &ModelRecord, s: &[u8]) -> StoreResult<bool> {
+        self.0.update_model(r, s)
     }
     fn get(&self, id: &str) -> StoreResult<Option<ModelRecord>> {
         self.0.get(id)
@@ -571,6 +572,9 @@ impl Store for DamagedStore {
     }
     fn upload(&self, id: &str) -> StoreResult<Option<Upload>> {
         self.0.upload(id)
+    }
+    fn blob(&self, hash: &str) -> StoreResult<Option<Bytes>> {
+        self.0.blob(hash)
     }
     fn delete(&self, id: &str) -> StoreResult<Option<ModelRecord>> {
         self.0.delete(id)
@@ -626,4 +630,130 @@ async fn internal_errors_say_nothing_of_their_detail() {
         .unwrap()
         .contains("x-request-id"));
     assert!(failed.headers().contains_key("x-request-id"));
+}
+
+/// The original files come back byte for byte, with their type, `ETag` and name; a client
+/// holding the current copy gets a 304.
+#[tokio::test]
+async fn original_files_come_back_byte_for_byte() {
+    let app = TestApp::new();
+    let horse = fixture("capod_horse_m155.obj");
+    assert_eq!(
+        app.add("id=horse", "model/obj", horse.clone()).await.status,
+        StatusCode::CREATED
+    );
+    let file = app.get("/v1/models/horse/file").send().await;
+    assert_eq!(file.status, StatusCode::OK);
+    assert_eq!(file.body, horse);
+    assert_eq!(file.headers["content-type"], "model/obj");
+    let record = app.get_json("/v1/models/horse").await;
+    let etag = format!("\"{}\"", record["mesh_blob"].as_str().unwrap());
+    assert_eq!(file.headers["etag"].to_str().unwrap(), etag);
+    assert_eq!(
+        file.headers["content-disposition"],
+        "attachment; filename=\"horse.obj\""
+    );
+    let again = app
+        .get("/v1/models/horse/file")
+        .header("if-none-match", &etag)
+        .send()
+        .await;
+    assert_eq!(again.status, StatusCode::NOT_MODIFIED);
+    assert!(again.body.is_empty());
+
+    // A multi-file glTF: the document and its buffer, each as uploaded.
+    let form = Form::new()
+        .file("file", "tetra.gltf", fixture("gltf_external/tetra.gltf"))
+        .file("file", "tetra.bin", fixture("gltf_external/tetra.bin"))
+        .text("id", "tetra");
+    let created = app.post("/v1/models").multipart(form).send().await;
+    assert_eq!(created.status, StatusCode::CREATED, "{}", created.text());
+    let document = app.get("/v1/models/tetra/file").send().await;
+    assert_eq!(document.body, fixture("gltf_external/tetra.gltf"));
+    assert_eq!(document.headers["content-type"], "model/gltf+json");
+    let buffer = app.get("/v1/models/tetra/files/tetra.bin").send().await;
+    assert_eq!(buffer.status, StatusCode::OK);
+    assert_eq!(buffer.body, fixture("gltf_external/tetra.bin"));
+    expect_error(
+        app.get("/v1/models/tetra/files/other.bin").send().await,
+        StatusCode::NOT_FOUND,
+        "not_found",
+    )
+    .await;
+    expect_error(
+        app.get("/v1/models/nobody/file").send().await,
+        StatusCode::NOT_FOUND,
+        "not_found",
+    )
+    .await;
+}
+
+/// Name, tags and class change without re-extraction; a bad patch is a 400.
+#[tokio::test]
+async fn a_patch_edits_fields_without_re_extracting() {
+    let app = TestApp::new();
+    let added = app
+        .add(
+            "id=horse&name=Horse&tags=animal",
+            "model/obj",
+            fixture("capod_horse_m155.obj"),
+        )
+        .await
+        .json();
+    let signature = app.get_json("/v1/models/horse/signature").await;
+    let extractions = || async {
+        let metrics = app.get("/metrics").send().await.text();
+        metrics
+            .lines()
+            .find(|l| l.starts_with("salient_extraction_seconds_count"))
+            .unwrap()
+            .to_string()
+    };
+    let before = extractions().await;
+    let patched = app
+        .request_with_method("PATCH", "/v1/models/horse")
+        .header("content-type", "application/json")
+        .body(r#"{"tags": ["animal", " capod ", ""], "class": "horse", "name": null}"#)
+        .send()
+        .await;
+    assert_eq!(patched.status, StatusCode::OK, "{}", patched.text());
+    let patched = patched.json();
+    assert_eq!(patched["tags"], serde_json::json!(["animal", "capod"]));
+    assert_eq!(patched["class"], "horse");
+    assert!(patched["name"].is_null());
+    assert_eq!(patched["content_hash"], added["content_hash"]);
+    assert_eq!(app.get_json("/v1/models/horse").await, patched);
+    assert_eq!(app.get_json("/v1/models/horse/signature").await, signature);
+    assert_eq!(extractions().await, before, "nothing was re-extracted");
+    let tagged = app.get_json("/v1/models?tag=capod").await;
+    assert_eq!(tagged["models"][0]["id"], "horse");
+
+    let patch = |body: &'static str| {
+        app.request_with_method("PATCH", "/v1/models/horse")
+            .header("content-type", "application/json")
+            .body(body)
+            .send()
+    };
+    expect_error(
+        patch(r#"{"colour": "red"}"#).await,
+        StatusCode::BAD_REQUEST,
+        "invalid_json",
+    )
+    .await;
+    expect_error(
+        patch(r#"{"tags": "a,b"}"#).await,
+        StatusCode::BAD_REQUEST,
+        "invalid_json",
+    )
+    .await;
+    expect_error(
+        app.request_with_method("PATCH", "/v1/models/nobody")
+            .header("content-type", "application/json")
+            .body("{}")
+            .send()
+            .await,
+        StatusCode::NOT_FOUND,
+        "not_found",
+    )
+    .await;
 }

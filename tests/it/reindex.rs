@@ -52,9 +52,7 @@ fn strip_descriptor(store: &dyn Store, id: &str) {
     let record = store.get(id).unwrap().unwrap();
     let mut signature = Signature::from_bytes(&store.signature(id).unwrap().unwrap()).unwrap();
     signature.lfd = None;
-    assert!(store
-        .update_signature(&record, &signature.to_bytes())
-        .unwrap());
+    assert!(store.update_model(&record, &signature.to_bytes()).unwrap());
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -111,9 +109,7 @@ async fn an_interrupted_run_resumes_after_its_last_model() {
     let mut record = store.get("cone").unwrap().unwrap();
     let signature = compute(&shapes::cone(0.5, 20, 24), &params).unwrap();
     record.describe(&signature);
-    assert!(store
-        .update_signature(&record, &signature.to_bytes())
-        .unwrap());
+    assert!(store.update_model(&record, &signature.to_bytes()).unwrap());
     let interrupted = serde_json::json!({
         "state": "running", "total": 3, "done": 1, "last_id": "cone", "started_unix": 1234
     });

@@ -106,6 +106,18 @@ impl Format {
 
     /// The content type a client sends a file of this format with (the inverse of
     /// [`Format::from_content_type`]).
+    /// The usual file extension, without the dot.
+    pub fn extension(self) -> &'static str {
+        match self {
+            Format::Obj => "obj",
+            Format::Gltf => "gltf",
+            Format::Glb => "glb",
+            Format::Off => "off",
+            Format::Ply => "ply",
+            Format::Stl => "stl",
+        }
+    }
+
     pub fn media_type(self) -> &'static str {
         match self {
             Format::Obj => "model/obj",
