@@ -4,6 +4,7 @@
 use crate::shapes;
 
 use salient::pipeline::compute;
+use salient::signature::Staleness;
 use salient::similarity::compare;
 use salient::{Error, Params, Signature};
 
@@ -168,7 +169,7 @@ fn format_1_signatures_read_without_a_light_field_descriptor() {
     assert_eq!(old.features, s.features);
     assert_eq!(
         old.staleness(&Params::default()),
-        Some(salient::signature::Staleness::Parameters)
+        Some(Staleness::Parameters)
     );
     // Trailing bytes in a format-1 record, or a descriptor with images missing, are corrupt.
     let mut trailing = v1.clone();
@@ -199,4 +200,28 @@ fn postcard_descriptor(json: &serde_json::Value) -> Vec<u8> {
         bytes.extend(coefficients.iter().map(|c| c.as_u64().unwrap() as u8));
     }
     bytes
+}
+
+/// The staleness rule: extraction parameters and the extraction version make a signature
+/// stale; ranking parameters never do, so retuning them forces no re-extraction.
+#[test]
+fn only_extraction_parameters_make_a_signature_stale() {
+    let s = signature(&shapes::cone(0.5, 12, 24));
+    let current = Params::default();
+    assert_eq!(s.staleness(&current), None);
+    let mut ranking = current.clone();
+    ranking.similarity.ecc_weight = 0.9;
+    ranking.similarity.penalty = false;
+    assert_eq!(s.staleness(&ranking), None);
+    let mut extraction = current.clone();
+    extraction.ecc.local_size = 0.4;
+    assert_eq!(s.staleness(&extraction), Some(Staleness::Parameters));
+    let mut older = s.clone();
+    older.params.version -= 1;
+    assert_eq!(older.staleness(&current), Some(Staleness::Parameters));
+    let without = Signature { lfd: None, ..s };
+    assert_eq!(
+        without.staleness(&current),
+        Some(Staleness::MissingDescriptor)
+    );
 }
