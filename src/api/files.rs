@@ -9,7 +9,7 @@ use axum::response::{IntoResponse, Response};
 use serde::Deserialize;
 
 use super::error::{AppError, ErrorBody};
-use super::models::no_model;
+use super::models::record_of;
 use super::upload::{AppPath, MeshFile, ModelPath};
 use super::AppState;
 
@@ -100,13 +100,7 @@ pub async fn get_file(
     headers: HeaderMap,
 ) -> Result<Response, AppError> {
     let id = path.id()?;
-    let record = app
-        .catalog
-        .snapshot()
-        .records
-        .get(&id)
-        .cloned()
-        .ok_or_else(|| no_model(&id))?;
+    let record = record_of(&app, &id)?;
     let name = format!("{id}.{}", record.format.extension());
     let media_type = record.format.media_type();
     serve(&app, record.mesh_blob.clone(), media_type, &name, &headers).await
@@ -131,13 +125,7 @@ pub async fn get_resource(
     headers: HeaderMap,
 ) -> Result<Response, AppError> {
     let id = ModelPath { id: path.id }.id()?;
-    let record = app
-        .catalog
-        .snapshot()
-        .records
-        .get(&id)
-        .cloned()
-        .ok_or_else(|| no_model(&id))?;
+    let record = record_of(&app, &id)?;
     let hash = record.resources.get(&path.name).cloned().ok_or_else(|| {
         AppError::NotFound(format!(
             "model {:?} has no resource {:?}",

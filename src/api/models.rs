@@ -175,6 +175,16 @@ pub fn no_model(id: &ModelId) -> AppError {
     AppError::NotFound(format!("no model {:?}", id.as_str()))
 }
 
+/// The current record of `id`.
+pub fn record_of(app: &AppState, id: &ModelId) -> Result<Arc<ModelRecord>, AppError> {
+    let snapshot = app.catalog.snapshot();
+    snapshot
+        .records
+        .get(id)
+        .cloned()
+        .ok_or_else(|| no_model(id))
+}
+
 /// Get a model's record.
 #[utoipa::path(
     get,
@@ -191,10 +201,8 @@ pub async fn get_model(
     State(app): State<AppState>,
     AppPath(path): AppPath<ModelPath>,
 ) -> Result<Json<ModelRecord>, AppError> {
-    let id = path.id()?;
-    let snapshot = app.catalog.snapshot();
-    let record = snapshot.records.get(&id).ok_or_else(|| no_model(&id))?;
-    Ok(Json(ModelRecord::clone(record)))
+    let record = record_of(&app, &path.id()?)?;
+    Ok(Json(ModelRecord::clone(&record)))
 }
 
 /// Delete a model (its files go when no other model uses them).
