@@ -158,8 +158,10 @@ async fn run(app: Arc<App>) {
         failed = progress.failed,
         "re-extraction finished"
     );
-    app.reindex.active.store(false, Ordering::SeqCst);
+    // Published before the run lets another start: a run started in between would take
+    // this one's `last_id` as its own and skip the models before it.
     publish(&app, progress).await;
+    app.reindex.active.store(false, Ordering::SeqCst);
 }
 
 /// Keeps the progress in the store, then shows it to readers: whoever sees a state can
