@@ -80,7 +80,9 @@ impl Pool {
         tokio::task::spawn_blocking(move || {
             let _span = span.enter();
             let result = job();
-            drop((worker, permit));
+            // The queue slot goes before the worker: whoever gets the worker next finds
+            // the slot free already.
+            drop((permit, worker));
             result
         })
         .await
