@@ -2,6 +2,7 @@
 
 mod v0001_initial;
 mod v0002_signature_format3;
+mod v0003_previews;
 
 use crate::store::StoreResult;
 
@@ -23,5 +24,10 @@ pub const MIGRATIONS: &[Migration] = &[
         version: 2,
         name: "signature format 3, state tree",
         apply: v0002_signature_format3::apply,
+    },
+    Migration {
+        version: 3,
+        name: "preview cache",
+        apply: v0003_previews::apply,
     },
 ];

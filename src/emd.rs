@@ -30,6 +30,38 @@ pub fn emd_uniform(m: usize, n: usize, cost: impl Fn(usize, usize) -> f64) -> f6
 
 /// [`emd`] with the costs given as a row-major `supply.len() × demand.len()` matrix.
 pub fn emd_matrix(supply: &[u64], demand: &[u64], cost: &[f64]) -> f64 {
+    optimise(supply, demand, cost).0
+}
+
+/// One cell of an optimal transport plan: `mass` (a fraction of the total) moves from
+/// supply `from` to demand `to`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Flow {
+    pub from: usize,
+    pub to: usize,
+    pub mass: f64,
+}
+
+/// [`emd_matrix`] and the optimal plan behind it: which supply went where (the flows `f_ij`
+/// of Eq. 9), each cell with flow, in row then column order.
+pub fn emd_flows(supply: &[u64], demand: &[u64], cost: &[f64]) -> (f64, Vec<Flow>) {
+    let (emd, simplex, total) = optimise(supply, demand, cost);
+    let mut flows: Vec<Flow> = simplex
+        .basis
+        .iter()
+        .filter(|c| c.flow > 0)
+        .map(|c| Flow {
+            from: c.i,
+            to: c.j,
+            mass: c.flow as f64 / total as f64,
+        })
+        .collect();
+    flows.sort_by_key(|f| (f.from, f.to));
+    (emd, flows)
+}
+
+/// The solved simplex, its EMD and the total mass.
+fn optimise<'a>(supply: &[u64], demand: &[u64], cost: &'a [f64]) -> (f64, Simplex<'a>, u64) {
     let total: u64 = supply.iter().sum();
     assert!(
         total > 0
@@ -39,7 +71,7 @@ pub fn emd_matrix(supply: &[u64], demand: &[u64], cost: &[f64]) -> f64 {
     );
     let mut simplex = Simplex::new(supply, demand, cost);
     simplex.solve();
-    simplex.work() / total as f64
+    (simplex.work() / total as f64, simplex, total)
 }
 
 /// A basic cell and its flow.

@@ -24,7 +24,9 @@
 //!   feature `server`);
 //! - [`eval`]: the evaluation protocol — retrieval measures, robustness, parameter study
 //!   (§7; feature `eval`);
-//! - [`render`]: pictures of a mesh with its salient points and regions (paper Fig. 10);
+//! - [`preview`]: a compact display mesh of a model with its regions (thumbnails, 3D view);
+//! - [`render`]: pictures of a mesh with its salient points and regions (paper Fig. 10),
+//!   thumbnails and comparisons;
 //! - [`raster`]: triangle scan conversion shared by pictures and silhouettes.
 
 #[cfg(feature = "server")]
@@ -44,6 +46,7 @@ pub mod mesh;
 pub mod model;
 pub mod params;
 pub mod pipeline;
+pub mod preview;
 pub mod rank;
 pub mod raster;
 pub mod render;

@@ -16,7 +16,8 @@ use sha2::{Digest, Sha256};
 use crate::descriptor::{d2_histogram, LightFieldDescriptor};
 use crate::ecc::{self, EccField, EccStats};
 use crate::mesh::{self, Format, PrepareStats, PreparedMesh, RawMesh, Resources, Topology};
-use crate::params::{Limits, Params};
+use crate::params::{Limits, MeshParams, Params};
+use crate::preview::Preview;
 use crate::salient;
 use crate::signature::{Feature, MeshHash, Signature, SignatureStats};
 use crate::Result;
@@ -91,6 +92,22 @@ pub fn signature_of_file(
 ) -> Result<Signature> {
     let raw = mesh::load_bytes(bytes, format, resources, limits)?;
     Signature::from_bytes(&compute(&raw, params)?.to_bytes())
+}
+
+/// The preview (thumbnails, 3D view) of a mesh file whose features are known: it is prepared
+/// again as they were found (`mesh` of the signature's parameters), and their regions regrown
+/// (no ECC). No features give the plain mesh.
+pub fn preview_of_file(
+    bytes: &[u8],
+    format: Format,
+    resources: &dyn Resources,
+    (mesh, features): (&MeshParams, &[Feature]),
+    limits: &Limits,
+) -> Result<Preview> {
+    let raw = mesh::load_bytes(bytes, format, resources, limits)?;
+    let mesh = mesh::prepare(&raw, mesh)?;
+    let topology = Topology::new(&mesh.positions, &mesh.triangles);
+    Ok(Preview::new(&mesh, &topology, features))
 }
 
 /// Loads nothing: extracts the signature of an already loaded mesh.

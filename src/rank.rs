@@ -71,6 +71,8 @@ pub fn distance(method: Method, p: &Signature, q: &Signature, params: &Similarit
 }
 
 impl Method {
+    pub const ALL: [Method; 3] = [Method::Ecc, Method::D2, Method::Lfd];
+
     /// Whether `signature` holds what this method compares.
     pub fn comparable(self, signature: &Signature) -> bool {
         self != Method::Lfd || signature.lfd.is_some()

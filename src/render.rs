@@ -8,11 +8,16 @@
 use std::path::Path;
 
 use glam::{DMat3, DVec3};
-use image::{Rgb, RgbImage};
+use image::codecs::png::PngEncoder;
+use image::imageops::FilterType;
+use image::{ImageEncoder, Rgb, RgbImage};
+use serde::{Deserialize, Serialize};
 
 use crate::pipeline::Extraction;
+use crate::preview::{Preview, NO_REGION};
 use crate::raster::fill_triangle;
 use crate::salient::SalientPoint;
+use crate::similarity::Match;
 use crate::{Error, Result};
 
 /// The colour of salient points.
@@ -27,7 +32,8 @@ const REGION_COLOURS: [[f64; 3]; 6] = [
     [1.0, 0.6, 0.2],
     [0.3, 0.9, 0.8],
 ];
-const SURFACE: [f64; 3] = [0.78, 0.78, 0.8];
+/// The colour of the surface outside salient regions.
+pub const SURFACE: [f64; 3] = [0.78, 0.78, 0.8];
 const BACKGROUND: Rgb<u8> = Rgb([250, 250, 250]);
 
 /// An orthographic view of the unit sphere the mesh is normalised into (SPEC §1.4).
@@ -37,11 +43,43 @@ pub struct Camera {
     rotation: DMat3,
 }
 
+/// Which of a model's axes points up. File formats do not say (glTF's is +y by its
+/// specification, STL files and CAD exports are mostly +z): a library chooses for its own.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "lowercase")]
+pub enum UpAxis {
+    #[default]
+    Y,
+    Z,
+}
+
+impl UpAxis {
+    /// Turns the model so that its up axis is +y.
+    fn upright(self) -> DMat3 {
+        match self {
+            UpAxis::Y => DMat3::IDENTITY,
+            UpAxis::Z => DMat3::from_rotation_x(-std::f64::consts::FRAC_PI_2),
+        }
+    }
+
+    pub fn as_str(self) -> &'static str {
+        match self {
+            UpAxis::Y => "y",
+            UpAxis::Z => "z",
+        }
+    }
+}
+
 impl Camera {
     /// A camera turned `yaw` radians about the vertical axis and tilted `pitch` radians down.
     pub fn new(yaw: f64, pitch: f64) -> Self {
+        Self::upright(yaw, pitch, UpAxis::Y)
+    }
+
+    /// [`Camera::new`] for a model whose up axis is `up`.
+    pub fn upright(yaw: f64, pitch: f64, up: UpAxis) -> Self {
         Self {
-            rotation: DMat3::from_rotation_x(pitch) * DMat3::from_rotation_y(yaw),
+            rotation: DMat3::from_rotation_x(pitch) * DMat3::from_rotation_y(yaw) * up.upright(),
         }
     }
 
@@ -134,6 +172,73 @@ impl Tile {
     }
 }
 
+/// What a picture shows, in normalised coordinates: coloured triangles, each hidden only
+/// behind what is more than its tolerance in front of it, then salient points on top.
+#[derive(Default)]
+struct Scene {
+    triangles: Vec<([DVec3; 3], [f64; 3], f64)>,
+    points: Vec<DVec3>,
+}
+
+impl Scene {
+    /// `size`-pixel tiles of the scene, one per camera, side by side.
+    fn picture(&self, cameras: &[Camera], size: u32) -> RgbImage {
+        let radius = (size as f64 / 90.0).max(2.5);
+        let mut image = RgbImage::from_pixel(size * cameras.len() as u32, size, BACKGROUND);
+        for (k, camera) in cameras.iter().enumerate() {
+            let mut tile = Tile::new(size);
+            for &(t, colour, tolerance) in &self.triangles {
+                tile.triangle(camera, t, colour, tolerance);
+            }
+            for &p in &self.points {
+                tile.point(camera, p, radius);
+            }
+            tile.paste(&mut image, k as u32 * size);
+        }
+        image
+    }
+
+    /// A preview's triangles coloured by `colour` of their region.
+    fn of_preview(preview: &Preview, colour: impl Fn(u16) -> [f64; 3], points: bool) -> Self {
+        let corner = |v: u32| preview.normalised(preview.positions[v as usize]);
+        Scene {
+            triangles: preview
+                .triangles
+                .iter()
+                .zip(preview.triangle_regions())
+                .map(|(t, region)| (t.map(corner), colour(region), 0.0))
+                .collect(),
+            points: if points {
+                preview
+                    .points
+                    .iter()
+                    .map(|&p| preview.normalised(p))
+                    .collect()
+            } else {
+                Vec::new()
+            },
+        }
+    }
+}
+
+impl Tile {
+    /// Copies the covered pixels into `image` at column `x0`.
+    fn paste(&self, image: &mut RgbImage, x0: u32) {
+        for (i, (&c, &z)) in self.colour.iter().zip(&self.depth).enumerate() {
+            if z > f64::NEG_INFINITY {
+                let (x, y) = (i as u32 % self.size, i as u32 / self.size);
+                let rgb = c.map(|v| (v * 255.0).round().clamp(0.0, 255.0) as u8);
+                image.put_pixel(x0 + x, y, Rgb(rgb));
+            }
+        }
+    }
+}
+
+/// The colour of salient region `i` (regions in feature order, the palette repeating).
+pub fn region_colour(i: usize) -> [f64; 3] {
+    REGION_COLOURS[i % REGION_COLOURS.len()]
+}
+
 /// The mesh of `extraction` seen by each of `cameras` in `size`-pixel tiles side by side, with
 /// `points`' regions coloured and the points marked.
 pub fn render(
@@ -143,31 +248,111 @@ pub fn render(
     size: u32,
 ) -> RgbImage {
     let mesh = &extraction.mesh;
-    let radius = (size as f64 / 90.0).max(2.5);
-    let mut image = RgbImage::from_pixel(size * cameras.len() as u32, size, BACKGROUND);
-    for (k, camera) in cameras.iter().enumerate() {
-        let mut tile = Tile::new(size);
-        for t in &mesh.triangles {
-            tile.triangle(camera, t.map(|v| mesh.positions[v as usize]), SURFACE, 0.0);
-        }
-        for (i, point) in points.iter().enumerate() {
-            let colour = REGION_COLOURS[i % REGION_COLOURS.len()];
-            for t in &point.region.triangles {
-                tile.triangle(camera, *t, colour, OVERLAY_TOLERANCE);
-            }
-        }
-        for point in points {
-            tile.point(camera, mesh.positions[point.vertex as usize], radius);
-        }
-        for (i, (&c, &z)) in tile.colour.iter().zip(&tile.depth).enumerate() {
-            if z > f64::NEG_INFINITY {
-                let (x, y) = (i as u32 % size, i as u32 / size);
-                let rgb = c.map(|v| (v * 255.0).round().clamp(0.0, 255.0) as u8);
-                image.put_pixel(k as u32 * size + x, y, Rgb(rgb));
-            }
+    let surface = mesh
+        .triangles
+        .iter()
+        .map(|t| (t.map(|v| mesh.positions[v as usize]), SURFACE, 0.0));
+    let regions = points.iter().enumerate().flat_map(|(i, point)| {
+        point
+            .region
+            .triangles
+            .iter()
+            .map(move |t| (*t, region_colour(i), OVERLAY_TOLERANCE))
+    });
+    Scene {
+        triangles: surface.chain(regions).collect(),
+        points: points
+            .iter()
+            .map(|p| mesh.positions[p.vertex as usize])
+            .collect(),
+    }
+    .picture(cameras, size)
+}
+
+/// The view of thumbnails: a three-quarter view from slightly above.
+fn thumbnail_camera(up: UpAxis) -> Camera {
+    Camera::upright(35f64.to_radians(), 20f64.to_radians(), up)
+}
+
+/// Pictures up to this size are drawn at twice it and scaled down, which smooths edges.
+const SUPERSAMPLED_UP_TO: u32 = 512;
+
+/// `draw` at `size`, supersampled when small enough.
+fn smooth(size: u32, width: u32, draw: impl Fn(u32) -> RgbImage) -> RgbImage {
+    if size > SUPERSAMPLED_UP_TO {
+        return draw(size);
+    }
+    let large = draw(2 * size);
+    image::imageops::resize(&large, width * size, size, FilterType::Triangle)
+}
+
+/// A `size`-pixel picture of a preview; with `features`, its regions coloured and salient
+/// points marked.
+pub fn thumbnail(preview: &Preview, size: u32, features: bool, up: UpAxis) -> RgbImage {
+    let scene = Scene::of_preview(
+        preview,
+        |region| match region {
+            NO_REGION => SURFACE,
+            r if features => region_colour(r as usize),
+            _ => SURFACE,
+        },
+        features,
+    );
+    smooth(size, 1, |s| scene.picture(&[thumbnail_camera(up)], s))
+}
+
+/// Two models side by side, `size` pixels each, matched regions in the same colours: `a`'s
+/// region `i` in colour `i`, `b`'s region `j` in the colour of the region of `a` that sent it
+/// the most mass (`matches` are the EMD's flows from `a`'s features to `b`'s).
+pub fn comparison(
+    (a, b): (&Preview, &Preview),
+    matches: &[Match],
+    size: u32,
+    up: UpAxis,
+) -> RgbImage {
+    let mut best: Vec<(f64, usize)> = vec![(0.0, usize::MAX); b.points.len()];
+    for m in matches {
+        if m.q < best.len() && m.mass > best[m.q].0 {
+            best[m.q] = (m.mass, m.p);
         }
     }
-    image
+    let left = Scene::of_preview(
+        a,
+        |r| match r {
+            NO_REGION => SURFACE,
+            r => region_colour(r as usize),
+        },
+        true,
+    );
+    let right = Scene::of_preview(
+        b,
+        |r| match best.get(r as usize) {
+            Some(&(_, i)) if i != usize::MAX => region_colour(i),
+            _ => SURFACE,
+        },
+        true,
+    );
+    smooth(size, 2, |s| {
+        let mut image = RgbImage::new(2 * s, s);
+        let camera = [thumbnail_camera(up)];
+        image::imageops::replace(&mut image, &left.picture(&camera, s), 0, 0);
+        image::imageops::replace(&mut image, &right.picture(&camera, s), s as i64, 0);
+        image
+    })
+}
+
+/// A picture as PNG bytes.
+pub fn png(image: &RgbImage) -> Vec<u8> {
+    let mut bytes = Vec::new();
+    PngEncoder::new(&mut bytes)
+        .write_image(
+            image.as_raw(),
+            image.width(),
+            image.height(),
+            image::ColorType::Rgb8,
+        )
+        .expect("encoding a picture in memory cannot fail");
+    bytes
 }
 
 /// Saves a picture as PNG.

@@ -6,7 +6,7 @@
 use serde::{Deserialize, Serialize};
 
 use crate::descriptor::histogram_l1;
-use crate::emd::emd_matrix;
+use crate::emd::{emd_flows, emd_matrix};
 use crate::params::SimilarityParams;
 use crate::signature::{Feature, Signature};
 
@@ -56,6 +56,16 @@ pub struct CostMatrix {
 }
 
 impl CostMatrix {
+    /// Eq. 13 from the EMD of these features.
+    fn similarity(&self, emd: f64, params: &SimilarityParams) -> Similarity {
+        Similarity {
+            sim: penalty(self.m, self.n, params) * emd,
+            emd,
+            m: self.m,
+            n: self.n,
+        }
+    }
+
     pub fn new(p: &Signature, q: &Signature, params: &SimilarityParams) -> Self {
         let (m, n) = (p.features.len(), q.features.len());
         let cost = p
@@ -105,12 +115,42 @@ pub fn compare_costs(costs: &CostMatrix, params: &SimilarityParams) -> Similarit
     } else {
         emd_matrix(&vec![n as u64; m], &vec![m as u64; n], &costs.cost)
     };
-    Similarity {
-        sim: penalty(m, n, params) * emd,
-        emd,
-        m,
-        n,
+    costs.similarity(emd, params)
+}
+
+/// Which salient feature of `P` was matched to which of `Q`: one flow of the optimal EMD
+/// plan (Eq. 9), its mass (the masses sum to 1) and its ground distance (Eq. 11).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Match {
+    pub p: usize,
+    pub q: usize,
+    pub mass: f64,
+    pub ground_distance: f64,
+}
+
+/// [`compare`] and the matches behind it, for explaining a result. No matches when either
+/// side has no features.
+pub fn explain(
+    p: &Signature,
+    q: &Signature,
+    params: &SimilarityParams,
+) -> (Similarity, Vec<Match>) {
+    let costs = CostMatrix::new(p, q, params);
+    let (m, n) = (costs.m, costs.n);
+    if m == 0 || n == 0 {
+        return (costs.similarity(f64::INFINITY, params), Vec::new());
     }
+    let (emd, flows) = emd_flows(&vec![n as u64; m], &vec![m as u64; n], &costs.cost);
+    let matches = flows
+        .into_iter()
+        .map(|f| Match {
+            p: f.from,
+            q: f.to,
+            mass: f.mass,
+            ground_distance: costs.cost[f.from * n + f.to],
+        })
+        .collect();
+    (costs.similarity(emd, params), matches)
 }
 
 /// The baseline's distance: half the L1 distance of the global D2 histograms (SPEC §6).

@@ -60,10 +60,11 @@ impl FromStr for Scope {
 /// extracting are `POST`s that change nothing, so they need only `read`.
 pub fn required_scope(method: &Method, route: &str, metrics_open: bool) -> Option<Scope> {
     match route {
-        "/healthz" | "/readyz" | "/openapi.yaml" => None,
+        // The page holds no data: it asks for a key when the API does.
+        "/healthz" | "/readyz" | "/openapi.yaml" | "/" | "/page/{file}" => None,
         "/metrics" => (!metrics_open).then_some(Scope::Admin),
         admin if admin.starts_with("/v1/admin/") => Some(Scope::Admin),
-        "/v1/search" | "/v1/extract" => Some(Scope::Read),
+        "/v1/search" | "/v1/extract" | "/v1/preview" => Some(Scope::Read),
         _ if method == Method::GET || method == Method::HEAD => Some(Scope::Read),
         _ => Some(Scope::Write),
     }

@@ -85,7 +85,7 @@ impl Catalog {
     }
 
     /// Adds or replaces a model; returns the number of models.
-    pub fn put(&self, record: ModelRecord, signature: Signature) -> usize {
+    pub fn put(&self, record: ModelRecord, signature: impl Into<Arc<Signature>>) -> usize {
         self.update(|s| s.put(record, signature))
     }
 

@@ -7,6 +7,7 @@ use std::path::{Path, PathBuf};
 use serde::{Deserialize, Serialize};
 
 use crate::params::{Limits, Params};
+use crate::render::UpAxis;
 
 /// Everything `salient serve` can be told.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -46,6 +47,8 @@ pub struct Config {
     pub allow_anonymous: bool,
     /// `/metrics` without a key (for a scraper inside a trusted network).
     pub metrics_open: bool,
+    /// The models' up axis, for thumbnails and 3D views.
+    pub up_axis: UpAxis,
 }
 
 /// A value that must not be printed: its `Debug` says only that it is there.
@@ -79,6 +82,7 @@ impl Default for Config {
             inline_keys: None,
             allow_anonymous: false,
             metrics_open: false,
+            up_axis: UpAxis::Y,
         }
     }
 }

@@ -24,6 +24,19 @@ pub struct ResourcePath {
     pub name: String,
 }
 
+/// A 304 when the request's `If-None-Match` names `etag` (a quoted strong tag of safe
+/// characters): the client's copy is current.
+pub(super) fn not_modified(request: &HeaderMap, etag: &str) -> Option<Response> {
+    let cached = request
+        .get(header::IF_NONE_MATCH)
+        .and_then(|v| v.to_str().ok())
+        .is_some_and(|tags| tags.split(',').any(|t| t.trim() == etag || t.trim() == "*"));
+    cached.then(|| {
+        let etag = HeaderValue::from_str(etag).expect("an ETag of safe characters");
+        (StatusCode::NOT_MODIFIED, [(header::ETAG, etag)]).into_response()
+    })
+}
+
 /// Serves `hash`'s bytes from the store, or a 304 when the client holds them.
 async fn serve(
     app: &AppState,
@@ -33,14 +46,10 @@ async fn serve(
     request: &HeaderMap,
 ) -> Result<Response, AppError> {
     let etag = format!("\"{hash}\"");
-    let cached = request
-        .get(header::IF_NONE_MATCH)
-        .and_then(|v| v.to_str().ok())
-        .is_some_and(|tags| tags.split(',').any(|t| t.trim() == etag || t.trim() == "*"));
-    let etag_header = HeaderValue::from_str(&etag).expect("hex is a valid header value");
-    if cached {
-        return Ok((StatusCode::NOT_MODIFIED, [(header::ETAG, etag_header)]).into_response());
+    if let Some(unchanged) = not_modified(request, &etag) {
+        return Ok(unchanged);
     }
+    let etag_header = HeaderValue::from_str(&etag).expect("hex is a valid header value");
     let bytes: Bytes = app
         .with_store(move |store| store.blob(&hash))
         .await?

@@ -10,7 +10,9 @@ mod files;
 mod metrics;
 mod models;
 mod ops;
+mod page;
 pub mod pool;
+mod previews;
 mod reindex;
 mod search;
 pub mod upload;
@@ -60,6 +62,9 @@ impl Deref for AppState {
 /// it there (with a barrier or a channel) while something else happens.
 pub type Hook = Arc<dyn Fn() + Send + Sync>;
 
+/// How many query signatures [`App::extract_query`] remembers (≈ 8 KB each).
+const RECENT_QUERIES: std::num::NonZeroUsize = std::num::NonZeroUsize::new(64).expect("not zero");
+
 /// The service: configuration, store, catalogue, pools and background work.
 pub struct App {
     pub config: Config,
@@ -76,6 +81,8 @@ pub struct App {
     reindex: reindex::Reindexer,
     /// The API keys accepted now (replaced whole when the key file is read again).
     keys: ArcSwap<KeySet>,
+    /// Signatures of recent queries by content hash (see [`App::extract_query`]).
+    queries: std::sync::Mutex<lru::LruCache<String, Arc<Signature>>>,
     /// Called on the ranking thread while it holds its catalogue snapshot (tests).
     ranking_hook: Option<Hook>,
 }
@@ -156,6 +163,7 @@ impl App {
             writes: tokio::sync::Mutex::new(()),
             reindex,
             keys: ArcSwap::from_pointee(keys),
+            queries: std::sync::Mutex::new(lru::LruCache::new(RECENT_QUERIES)),
             ranking_hook: None,
         })
     }
@@ -202,8 +210,30 @@ impl App {
         self.reindex.subscribe()
     }
 
+    /// The signature of a query upload: extracted, or remembered from a recent query with the
+    /// same content (the page asks for a query's preview right after its search, and a
+    /// search again with another method).
+    async fn extract_query(&self, upload: Arc<Upload>) -> Result<Arc<Signature>, AppError> {
+        let hash = upload.content_hash().to_string();
+        let recent = self
+            .queries
+            .lock()
+            .expect("never poisoned")
+            .get(&hash)
+            .cloned();
+        if let Some(signature) = recent {
+            return Ok(signature);
+        }
+        let signature = self.extract(upload).await?;
+        self.queries
+            .lock()
+            .expect("never poisoned")
+            .put(hash, signature.clone());
+        Ok(signature)
+    }
+
     /// Extracts the signature of an upload on the pool, in its stored form.
-    async fn extract(&self, upload: Arc<Upload>) -> Result<Signature, AppError> {
+    async fn extract(&self, upload: Arc<Upload>) -> Result<Arc<Signature>, AppError> {
         let params = self.config.params.clone();
         let limits = self.config.limits;
         let clock = Instant::now();
@@ -222,7 +252,7 @@ impl App {
         self.metrics
             .extraction_seconds
             .observe(clock.elapsed().as_secs_f64());
-        Ok(signature)
+        Ok(Arc::new(signature))
     }
 
     /// Runs `f` on a snapshot of the catalogue, on the ranking pool (ranking is CPU work),
@@ -351,6 +381,10 @@ fn routes() -> OpenApiRouter<AppState> {
         .routes(utoipa_axum::routes!(models::get_signature))
         .routes(utoipa_axum::routes!(files::get_file))
         .routes(utoipa_axum::routes!(files::get_resource))
+        .routes(utoipa_axum::routes!(previews::get_thumbnail))
+        .routes(utoipa_axum::routes!(previews::get_preview))
+        .routes(utoipa_axum::routes!(previews::query_preview))
+        .routes(utoipa_axum::routes!(previews::compare))
         .routes(utoipa_axum::routes!(search::similar))
         .routes(utoipa_axum::routes!(search::search))
         .routes(utoipa_axum::routes!(search::extract))
@@ -375,6 +409,10 @@ pub fn openapi_yaml() -> String {
 pub fn app(state: AppState) -> Router {
     let config = &state.config;
     let (router, _) = routes().split_for_parts();
+    // The page is not part of the API's description.
+    let router = router
+        .route("/", axum::routing::get(page::index))
+        .route("/page/{file}", axum::routing::get(page::file));
     let cors = match config.cors_origins.as_slice() {
         [] => CorsLayer::new(),
         [any] if any == "*" => CorsLayer::new().allow_origin(AllowOrigin::any()),

@@ -12,8 +12,10 @@ use super::models::no_model;
 use super::upload::{AppPath, AppQuery, MeshFile, MeshForm, MeshUpload, ModelPath};
 use super::AppState;
 use crate::model::ModelId;
-use crate::rank::{Method, Ranking};
+use crate::params::SimilarityParams;
+use crate::rank::{distance, Method, Ranking};
 use crate::signature::Signature;
+use crate::similarity::explain;
 
 /// Query of the search endpoints.
 #[derive(Debug, Deserialize, utoipa::IntoParams)]
@@ -32,6 +34,9 @@ pub struct SearchQuery {
     pub w: Option<f64>,
     /// Only models with this tag.
     pub tag: Option<String>,
+    /// Explain each result: its distance by every method, and which salient features of the
+    /// query the EMD matched to which of the result's (default false).
+    pub explain: Option<bool>,
 }
 
 /// One ranked model.
@@ -45,6 +50,50 @@ pub struct SearchHit {
     /// Lower is more similar (`SIM` of SPEC §5, the D2 distance, or the LFD distance in
     /// [0, 1]).
     pub distance: f64,
+    /// With `explain=true`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub explanation: Option<Explanation>,
+}
+
+/// Why a model ranked where it did.
+#[derive(Debug, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct Explanation {
+    /// The distance by each method that can compare the two (`ecc`, `d2`, `lfd`).
+    pub distances: std::collections::BTreeMap<String, f64>,
+    /// The optimal EMD plan between the salient features (paper Eq. 9): each flow from a
+    /// query feature to a result feature.
+    pub matches: Vec<FeatureMatch>,
+}
+
+/// One flow of the EMD between the query's and a result's salient features.
+#[derive(Debug, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct FeatureMatch {
+    /// Index of the query's feature (its order in the query's signature and preview).
+    pub query: usize,
+    /// Index of the result's feature.
+    pub result: usize,
+    /// Share of the total mass moved (the masses of a result sum to 1).
+    pub mass: f64,
+    /// Ground distance of the two features (Eq. 11).
+    pub ground_distance: f64,
+    /// The two salient points, each in its own model's coordinates.
+    pub query_position: [f64; 3],
+    pub result_position: [f64; 3],
+}
+
+/// The query's salient features, with `explain=true`.
+#[derive(Debug, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct QueryFeatures {
+    pub features: Vec<QueryFeature>,
+}
+
+/// A salient feature of the query.
+#[derive(Debug, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct QueryFeature {
+    /// The salient point, in the query's own coordinates.
+    pub position: [f64; 3],
+    /// Geodesic radius of its region, normalised units (SPEC §3.3).
+    pub region_size: f64,
 }
 
 /// Milliseconds spent on each part of the request.
@@ -70,7 +119,32 @@ pub struct SearchResponse {
     pub left_out: usize,
     /// Salient features of the query.
     pub query_features: usize,
+    /// With `explain=true`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub query: Option<QueryFeatures>,
     pub timings: Timings,
+}
+
+/// The explanation of `result`'s distance from `query`.
+fn explanation(query: &Signature, result: &Signature, params: &SimilarityParams) -> Explanation {
+    let distances = Method::ALL
+        .into_iter()
+        .filter(|m| m.comparable(query) && m.comparable(result))
+        .map(|m| (m.to_string(), distance(m, query, result, params)))
+        .collect();
+    let (_, matches) = explain(query, result, params);
+    let matches = matches
+        .into_iter()
+        .map(|m| FeatureMatch {
+            query: m.p,
+            result: m.q,
+            mass: m.mass,
+            ground_distance: m.ground_distance,
+            query_position: query.features[m.p].position,
+            result_position: result.features[m.q].position,
+        })
+        .collect();
+    Explanation { distances, matches }
 }
 
 /// Ranks the catalog against `query` off the async threads.
@@ -102,6 +176,17 @@ async fn rank(
     }
     let search_clock = Instant::now();
     let query_features = query.features.len();
+    let explain_hits = q.explain.unwrap_or(false);
+    let query_description = explain_hits.then(|| QueryFeatures {
+        features: query
+            .features
+            .iter()
+            .map(|f| QueryFeature {
+                position: f.position,
+                region_size: f.region_size,
+            })
+            .collect(),
+    });
     let tag = q.tag.clone();
     let results = app
         .read_catalog(move |catalog| {
@@ -122,7 +207,12 @@ async fn rank(
                 .enumerate()
                 .map(|(i, hit)| {
                     let record = catalog.records.get(hit.id.as_str());
+                    let explanation = explain_hits
+                        .then(|| catalog.index.get(hit.id.as_str()))
+                        .flatten()
+                        .map(|result| explanation(&query, result, &params));
                     SearchHit {
+                        explanation,
                         rank: i + 1,
                         name: record.and_then(|r| r.name.clone()),
                         tags: record.map(|r| r.tags.clone()).unwrap_or_default(),
@@ -146,6 +236,7 @@ async fn rank(
         pruned,
         left_out,
         query_features,
+        query: query_description,
         timings: Timings {
             extract_ms,
             search_ms: search_seconds * 1e3,
@@ -185,9 +276,9 @@ pub async fn search(
     upload: MeshUpload,
 ) -> Result<Json<SearchResponse>, AppError> {
     let clock = Instant::now();
-    let signature = app.extract(Arc::new(upload.upload)).await?;
+    let signature = app.extract_query(Arc::new(upload.upload)).await?;
     let extract_ms = clock.elapsed().as_secs_f64() * 1e3;
-    rank(&app, Arc::new(signature), q, None, clock, extract_ms).await
+    rank(&app, signature, q, None, clock, extract_ms).await
 }
 
 /// The stored models most similar to a stored model (itself left out).
@@ -255,5 +346,6 @@ pub async fn extract(
     State(app): State<AppState>,
     upload: MeshUpload,
 ) -> Result<Json<Signature>, AppError> {
-    Ok(Json(app.extract(Arc::new(upload.upload)).await?))
+    let signature = app.extract_query(Arc::new(upload.upload)).await?;
+    Ok(Json(Signature::clone(&signature)))
 }

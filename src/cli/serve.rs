@@ -8,6 +8,7 @@ use anyhow::Context;
 
 use salient::api::config::Secret;
 use salient::api::{app, App, AppState, Config};
+use salient::render::UpAxis;
 use salient::store::SledStore;
 
 /// Flags override the environment (`SALIENT_*`), which overrides the configuration file,
@@ -52,6 +53,10 @@ pub struct Args {
     /// Serve `/metrics` without a key.
     #[arg(long, env = "SALIENT_METRICS_OPEN", value_parser = clap::builder::BoolishValueParser::new(), num_args = 0..=1, default_missing_value = "true")]
     metrics_open: Option<bool>,
+    /// The models' up axis for thumbnails and 3D views: `y` (glTF, most game assets) or `z`
+    /// (CAD, 3D printing).
+    #[arg(long, env = "SALIENT_UP_AXIS", value_enum)]
+    up_axis: Option<UpAxis>,
     /// Origins allowed by CORS, comma-separated (`*` for any).
     #[arg(long, env = "SALIENT_CORS_ORIGINS", value_delimiter = ',')]
     cors_origins: Option<Vec<String>>,
@@ -77,6 +82,7 @@ impl Args {
         config.keys_file = a.keys_file.or(config.keys_file);
         config.allow_anonymous = a.allow_anonymous.unwrap_or(config.allow_anonymous);
         config.metrics_open = a.metrics_open.unwrap_or(config.metrics_open);
+        config.up_axis = a.up_axis.unwrap_or(config.up_axis);
         // Keys are secrets: the environment is the one place they come from, so that they
         // appear in no command line (`ps`) and no configuration file.
         config.inline_keys = std::env::var("SALIENT_API_KEYS").ok().map(Secret);

@@ -51,6 +51,19 @@ pub fn simplify_to_triangles(
     Input::new(positions, triangles).collapse(3 * max_triangles)
 }
 
+/// The triangles left by collapsing edges down to at most `max_triangles`, over the input's
+/// vertex indices (for a caller that carries per-vertex data along).
+pub fn collapsed_triangles(
+    positions: &[DVec3],
+    triangles: &[[u32; 3]],
+    max_triangles: usize,
+) -> Vec<[u32; 3]> {
+    if triangles.len() <= max_triangles {
+        return triangles.to_vec();
+    }
+    Input::new(positions, triangles).kept(3 * max_triangles)
+}
+
 /// A mesh in meshoptimizer's form.
 struct Input<'a> {
     positions: &'a [DVec3],
@@ -70,6 +83,11 @@ impl<'a> Input<'a> {
     /// Quadric edge collapses down to `target` indices (no error bound), unused vertices
     /// dropped.
     fn collapse(&self, target: usize) -> (Vec<DVec3>, Vec<[u32; 3]>) {
+        compact(self.positions, &self.kept(target))
+    }
+
+    /// The triangles left, over the input's vertices.
+    fn kept(&self, target: usize) -> Vec<[u32; 3]> {
         let kept = meshopt::simplify_decoder(
             &self.indices,
             &self.points,
@@ -78,8 +96,7 @@ impl<'a> Input<'a> {
             SimplifyOptions::None,
             None,
         );
-        let tris: Vec<[u32; 3]> = kept.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
-        compact(self.positions, &tris)
+        kept.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect()
     }
 }
 

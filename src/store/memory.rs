@@ -16,6 +16,7 @@ struct Inner {
     blobs: BTreeMap<String, (Bytes, u64)>,
     content: BTreeMap<String, ModelId>,
     state: BTreeMap<String, Vec<u8>>,
+    previews: BTreeMap<ModelId, Vec<u8>>,
 }
 
 impl Inner {
@@ -33,6 +34,7 @@ impl Inner {
 
     fn unlink(&mut self, old: &ModelRecord) {
         self.models.remove(&old.id);
+        self.previews.remove(&old.id);
         let hashes = std::iter::once(&old.mesh_blob).chain(old.resources.values());
         for hash in hashes {
             if let Some((_, refs)) = self.blobs.get_mut(hash) {
@@ -164,6 +166,23 @@ impl Store for InMemoryStore {
 
     fn len(&self) -> usize {
         self.lock().models.len()
+    }
+
+    fn preview(&self, id: &str) -> StoreResult<Option<Vec<u8>>> {
+        Ok(self.lock().previews.get(id).cloned())
+    }
+
+    fn put_preview(&self, id: &str, content_hash: &str, entry: &[u8]) -> StoreResult<bool> {
+        let mut inner = self.lock();
+        let Some((record, _)) = inner.models.get(id) else {
+            return Ok(false);
+        };
+        if record.content_hash != content_hash {
+            return Ok(false);
+        }
+        let id = record.id.clone();
+        inner.previews.insert(id, entry.to_vec());
+        Ok(true)
     }
 
     fn state(&self, key: &str) -> StoreResult<Option<Vec<u8>>> {

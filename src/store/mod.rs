@@ -92,6 +92,12 @@ pub trait Store: Send + Sync {
     fn is_empty(&self) -> bool {
         self.len() == 0
     }
+    /// The cached preview of a model (see `crate::preview`), as `put_preview` stored it.
+    fn preview(&self, id: &str) -> StoreResult<Option<Vec<u8>>>;
+    /// Caches a preview of `id` if the model still holds the upload `content_hash`; a model
+    /// deleted or replaced meanwhile gets none (returns false). Not flushed: a cache lost in
+    /// a crash is made again. The entry goes with the model when it is deleted or replaced.
+    fn put_preview(&self, id: &str, content_hash: &str, entry: &[u8]) -> StoreResult<bool>;
     /// A small value the service keeps between runs (the progress of a re-extraction).
     fn state(&self, key: &str) -> StoreResult<Option<Vec<u8>>>;
     fn set_state(&self, key: &str, value: &[u8]) -> StoreResult<()>;

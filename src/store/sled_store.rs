@@ -32,6 +32,7 @@ pub struct SledStore {
     blob_refs: sled::Tree,
     content: sled::Tree,
     state: sled::Tree,
+    previews: sled::Tree,
 }
 
 fn corrupt(key: &[u8], message: impl ToString) -> StoreError {
@@ -80,6 +81,7 @@ impl SledStore {
             blob_refs: db.open_tree("blob_refs")?,
             content: db.open_tree("content")?,
             state: db.open_tree("state")?,
+            previews: db.open_tree("previews")?,
             db,
         })
     }
@@ -159,20 +161,26 @@ fn blob_hashes(record: &ModelRecord) -> impl Iterator<Item = &str> {
     std::iter::once(record.mesh_blob.as_str()).chain(record.resources.values().map(String::as_str))
 }
 
+/// The trees a write of a whole model changes, in a transaction: models, signatures, blobs,
+/// blob references, content, previews.
+type ModelTrees = (
+    TransactionalTree,
+    TransactionalTree,
+    TransactionalTree,
+    TransactionalTree,
+    TransactionalTree,
+    TransactionalTree,
+);
+
 /// Removes `old` from the trees of a transaction.
 fn unlink(
-    trees: &(
-        TransactionalTree,
-        TransactionalTree,
-        TransactionalTree,
-        TransactionalTree,
-        TransactionalTree,
-    ),
+    trees: &ModelTrees,
     old: &ModelRecord,
 ) -> Result<(), ConflictableTransactionError<StoreError>> {
-    let (models, signatures, blobs, refs, content) = trees;
+    let (models, signatures, blobs, refs, content, previews) = trees;
     models.remove(old.id.as_str().as_bytes())?;
     signatures.remove(old.id.as_str().as_bytes())?;
+    previews.remove(old.id.as_str().as_bytes())?;
     for hash in blob_hashes(old) {
         release_blob(blobs, refs, hash)?;
     }
@@ -205,10 +213,11 @@ impl super::Store for SledStore {
             &self.blobs,
             &self.blob_refs,
             &self.content,
+            &self.previews,
         );
         let previous = trees
             .transaction(|view| {
-                let (models, signatures, blobs, refs, content) = view;
+                let (models, signatures, blobs, refs, content, _) = view;
                 let previous = match models.get(record.id.as_str().as_bytes())? {
                     Some(bytes) => {
                         let old = decode_record(record.id.as_str().as_bytes(), &bytes)
@@ -288,6 +297,7 @@ impl super::Store for SledStore {
             &self.blobs,
             &self.blob_refs,
             &self.content,
+            &self.previews,
         );
         let removed = trees
             .transaction(|view| {
@@ -348,6 +358,27 @@ impl super::Store for SledStore {
 
     fn len(&self) -> usize {
         self.models.len()
+    }
+
+    fn preview(&self, id: &str) -> StoreResult<Option<Vec<u8>>> {
+        Ok(self.previews.get(id)?.map(|v| v.to_vec()))
+    }
+
+    fn put_preview(&self, id: &str, content_hash: &str, entry: &[u8]) -> StoreResult<bool> {
+        (&self.models, &self.previews)
+            .transaction(|(models, previews)| {
+                let Some(bytes) = models.get(id)? else {
+                    return Ok(false);
+                };
+                let stored = decode_record(id.as_bytes(), &bytes)
+                    .map_err(ConflictableTransactionError::Abort)?;
+                if stored.content_hash != content_hash {
+                    return Ok(false);
+                }
+                previews.insert(id.as_bytes(), entry)?;
+                Ok(true)
+            })
+            .map_err(transaction_error)
     }
 
     fn state(&self, key: &str) -> StoreResult<Option<Vec<u8>>> {

@@ -594,6 +594,12 @@ impl Store for DamagedStore {
     fn len(&self) -> usize {
         self.0.len()
     }
+    fn preview(&self, id: &str) -> StoreResult<Option<Vec<u8>>> {
+        self.0.preview(id)
+    }
+    fn put_preview(&self, id: &str, content_hash: &str, entry: &[u8]) -> StoreResult<bool> {
+        self.0.put_preview(id, content_hash, entry)
+    }
     fn state(&self, key: &str) -> StoreResult<Option<Vec<u8>>> {
         self.0.state(key)
     }

@@ -27,6 +27,7 @@ mod ingest;
 mod lfd;
 mod load;
 mod openapi;
+mod previews;
 mod rank;
 mod reindex;
 mod signature;

@@ -1,0 +1,400 @@
+//! What a person sees (issue #11 §2–3): thumbnails, preview meshes, explained results, the
+//! comparison picture and the page, on generated meshes whose salient features are known (a
+//! sphere with five tips, the tips among its features) and a real CAPOD model.
+
+use std::sync::Arc;
+
+use axum::http::{header, StatusCode};
+use glam::{DMat4, DVec3};
+use salient::api::config::Secret;
+use salient::api::Config;
+use salient::preview::NO_REGION;
+use salient::render::{region_colour, SURFACE};
+use salient::store::{InMemoryStore, Store};
+use serde_json::Value;
+
+use crate::app::{expect_error, Form, TestApp};
+use crate::server::{fixture, obj};
+use crate::shapes;
+
+/// The five-tipped star, moved away from the origin and scaled, so that "own coordinates"
+/// differ from normalised ones.
+fn star() -> Vec<u8> {
+    let moved =
+        DMat4::from_translation(DVec3::new(10.0, -4.0, 2.0)) * DMat4::from_scale(DVec3::splat(3.0));
+    obj(&shapes::transformed(
+        &shapes::star(3, &shapes::five_tips()),
+        moved,
+    ))
+}
+
+fn sphere() -> Vec<u8> {
+    obj(&shapes::icosphere(3))
+}
+
+async fn with_models(app: &TestApp) {
+    for (id, mesh) in [
+        ("star", star()),
+        ("star-copy", star()),
+        ("sphere", sphere()),
+    ] {
+        let added = app.add(&format!("id={id}"), "model/obj", mesh).await;
+        assert_eq!(added.status(), StatusCode::CREATED, "{}", added.text());
+    }
+    let horse = fixture("capod_horse_m155.obj");
+    let added = app.add("id=horse", "model/obj", horse).await;
+    assert_eq!(added.status(), StatusCode::CREATED);
+}
+
+fn decode_png(bytes: &[u8]) -> image::RgbImage {
+    image::load_from_memory_with_format(bytes, image::ImageFormat::Png)
+        .expect("a PNG")
+        .to_rgb8()
+}
+
+/// Whether the picture shows colour `c` (shaded: some multiple of it, within rounding).
+fn shows(picture: &image::RgbImage, c: [f64; 3]) -> bool {
+    picture.pixels().any(|p| {
+        let k = p.0[0] as f64 / 255.0 / c[0];
+        k > 0.3 && (0..3).all(|i| (p.0[i] as f64 / 255.0 - k * c[i]).abs() < 0.03)
+    })
+}
+
+fn is_grey_or_red(p: &image::Rgb<u8>) -> bool {
+    let [r, g, b] = p.0.map(i32::from);
+    let grey = (r - g).abs() <= 6 && (g - b).abs() <= 8;
+    grey || (r > 150 && g < 90 && b < 90)
+}
+
+#[tokio::test]
+async fn a_thumbnail_is_cached_in_the_store_and_goes_with_its_model() {
+    let store = Arc::new(InMemoryStore::new());
+    let app = TestApp::build(Config::default(), store.clone(), None);
+    with_models(&app).await;
+    assert!(
+        store.preview("star").unwrap().is_none(),
+        "made on first use"
+    );
+
+    let plain = app
+        .get("/v1/models/star/thumbnail.png?size=64")
+        .send()
+        .await;
+    assert_eq!(plain.status(), StatusCode::OK, "{}", plain.text());
+    assert_eq!(plain.headers()[header::CONTENT_TYPE], "image/png");
+    let picture = decode_png(&plain.body);
+    assert_eq!(picture.dimensions(), (64, 64));
+    assert!(
+        picture.pixels().all(is_grey_or_red),
+        "without features the model is grey"
+    );
+    assert!(shows(&picture, SURFACE));
+    let cached = store
+        .preview("star")
+        .unwrap()
+        .expect("the preview is cached");
+
+    // Regions in their colours (the star has more features than the palette has colours).
+    let coloured = app
+        .get("/v1/models/star/thumbnail.png?size=128&features=true")
+        .send()
+        .await;
+    let picture = decode_png(&coloured.body);
+    let visible = (0..6)
+        .filter(|&i| shows(&picture, region_colour(i)))
+        .count();
+    assert!(visible >= 3, "{visible} of the 6 region colours visible");
+    assert_eq!(store.preview("star").unwrap().unwrap(), cached, "made once");
+
+    // Revalidation by ETag, per variant.
+    let etag = coloured.headers()[header::ETAG]
+        .to_str()
+        .unwrap()
+        .to_string();
+    assert_ne!(etag, plain.headers()[header::ETAG].to_str().unwrap());
+    let again = app
+        .get("/v1/models/star/thumbnail.png?size=128&features=true")
+        .header("if-none-match", &etag)
+        .send()
+        .await;
+    assert_eq!(again.status(), StatusCode::NOT_MODIFIED);
+    assert!(again.body.is_empty());
+
+    // Bounded sizes; unknown models.
+    for size in [8, 2000] {
+        let bad = app
+            .get(format!("/v1/models/star/thumbnail.png?size={size}"))
+            .send()
+            .await;
+        expect_error(&bad, StatusCode::BAD_REQUEST, "invalid_query");
+    }
+    let missing = app.get("/v1/models/nothing/thumbnail.png").send().await;
+    expect_error(&missing, StatusCode::NOT_FOUND, "not_found");
+
+    // Replaced: the old picture is not served under the old tag; deleted: the cache goes.
+    let replaced = app.add("id=star", "model/obj", sphere()).await;
+    assert_eq!(replaced.status(), StatusCode::OK);
+    assert!(store.preview("star").unwrap().is_none());
+    let fresh = app
+        .get("/v1/models/star/thumbnail.png?size=128&features=true")
+        .header("if-none-match", &etag)
+        .send()
+        .await;
+    assert_eq!(fresh.status(), StatusCode::OK);
+    assert_ne!(fresh.headers()[header::ETAG].to_str().unwrap(), etag);
+    assert_eq!(
+        app.delete("/v1/models/star").send().await.status(),
+        StatusCode::NO_CONTENT
+    );
+    assert!(store.preview("star").unwrap().is_none());
+}
+
+/// The GLB's attributes, read back with the `gltf` crate.
+struct Glb {
+    positions: Vec<[f32; 3]>,
+    regions: Vec<u16>,
+    triangles: usize,
+    points: Vec<[f64; 3]>,
+    up: String,
+}
+
+fn read_glb(bytes: &[u8]) -> Glb {
+    let gltf = gltf::Gltf::from_slice(bytes).expect("a valid GLB");
+    let bin = gltf.blob.clone().expect("a BIN chunk");
+    let primitive = gltf.meshes().next().unwrap().primitives().next().unwrap();
+    let reader = primitive.reader(|_| Some(&bin));
+    let positions: Vec<[f32; 3]> = reader.read_positions().unwrap().collect();
+    let triangles = reader.read_indices().unwrap().into_u32().count() / 3;
+    let region = primitive
+        .attributes()
+        .find(|(s, _)| s.to_string() == "_REGION")
+        .expect("a _REGION attribute")
+        .1;
+    let view = region.view().unwrap();
+    let regions = bin[view.offset()..view.offset() + view.length()]
+        .chunks_exact(2)
+        .map(|c| u16::from_le_bytes([c[0], c[1]]))
+        .collect();
+    let document: Value =
+        serde_json::from_slice(&gltf::binary::Glb::from_slice(bytes).unwrap().json).unwrap();
+    let extras = &document["asset"]["extras"];
+    let points = serde_json::from_value(extras["salient"]["points"].clone()).unwrap();
+    Glb {
+        positions,
+        regions,
+        triangles,
+        points,
+        up: extras["salient"]["up"].as_str().unwrap().to_string(),
+    }
+}
+
+#[tokio::test]
+async fn preview_meshes_carry_regions_and_points_in_the_models_own_coordinates() {
+    let app = TestApp::with_config(|c| c.up_axis = salient::render::UpAxis::Z);
+    with_models(&app).await;
+    let record = app.get_json("/v1/models/star").await;
+    let features = record["features"].as_u64().unwrap() as usize;
+    assert!(features >= 5, "at least one feature per tip: {features}");
+
+    let response = app.get("/v1/models/star/preview.glb").send().await;
+    assert_eq!(response.status(), StatusCode::OK);
+    assert_eq!(
+        response.headers()[header::CONTENT_TYPE],
+        "model/gltf-binary"
+    );
+    let glb = read_glb(&response.body);
+    assert_eq!(glb.up, "z");
+    assert_eq!(glb.positions.len(), glb.regions.len());
+    assert!(glb.triangles > 0 && glb.triangles <= salient::preview::MAX_TRIANGLES);
+    assert_eq!(glb.points.len(), features);
+    let mut labels: Vec<u16> = glb
+        .regions
+        .iter()
+        .copied()
+        .filter(|&r| r != NO_REGION)
+        .collect();
+    labels.sort_unstable();
+    labels.dedup();
+    assert_eq!(
+        labels,
+        (0..features as u16).collect::<Vec<_>>(),
+        "each feature's region is labelled"
+    );
+    assert!(glb.regions.contains(&NO_REGION), "the body is in no region");
+    // Own coordinates: the star was scaled by 3 about (10, −4, 2); its tips are up to 1.3 · 3
+    // out (normalised, everything would be within 1 of the origin).
+    let centre = DVec3::new(10.0, -4.0, 2.0);
+    let far = glb
+        .positions
+        .iter()
+        .map(|p| DVec3::from(p.map(f64::from)).distance(centre))
+        .fold(0.0, f64::max);
+    assert!((3.5..3.95).contains(&far), "farthest {far}");
+    for p in &glb.points {
+        assert!(
+            DVec3::from(*p).distance(centre) > 3.0,
+            "points at the tips: {p:?}"
+        );
+    }
+
+    // The same for an uploaded query, with and without features.
+    let form = || Form::new().file("file", "star.obj", star());
+    let query = app.post("/v1/preview").multipart(form()).send().await;
+    assert_eq!(query.status(), StatusCode::OK, "{}", query.text());
+    let query = read_glb(&query.body);
+    assert_eq!(query.points, glb.points);
+    assert_eq!(query.regions, glb.regions);
+    let plain = app
+        .post("/v1/preview?features=false")
+        .multipart(form())
+        .send()
+        .await;
+    let plain = read_glb(&plain.body);
+    assert!(plain.points.is_empty());
+    assert!(plain.regions.iter().all(|&r| r == NO_REGION));
+
+    let bad = app
+        .post("/v1/preview")
+        .multipart(Form::new().file("file", "bad.obj", b"v 1 2\nf 1 2 9\n".to_vec()))
+        .send()
+        .await;
+    assert!(bad.status().is_client_error(), "{}", bad.status());
+}
+
+#[tokio::test]
+async fn explained_results_give_every_distance_and_the_emd_plan() {
+    let app = TestApp::new();
+    with_models(&app).await;
+    let star_signature = app.get_json("/v1/models/star/signature").await;
+
+    let response = app
+        .post("/v1/search?k=4&explain=true")
+        .multipart(Form::new().file("file", "star.obj", star()))
+        .send()
+        .await;
+    assert_eq!(response.status(), StatusCode::OK, "{}", response.text());
+    let body = response.json();
+    let query = body["query"]["features"].as_array().unwrap();
+    let features = star_signature["features"].as_array().unwrap().len();
+    assert_eq!(query.len(), features);
+    for (q, f) in query
+        .iter()
+        .zip(star_signature["features"].as_array().unwrap())
+    {
+        assert_eq!(q["position"], f["position"]);
+    }
+    let results = body["results"].as_array().unwrap();
+    for hit in results {
+        let explanation = &hit["explanation"];
+        let distances = explanation["distances"].as_object().unwrap();
+        assert_eq!(distances.len(), 3, "ecc, d2 and lfd");
+        assert_eq!(
+            distances["ecc"], hit["distance"],
+            "the ranking's own distance"
+        );
+        let matches = explanation["matches"].as_array().unwrap();
+        let mass: f64 = matches.iter().map(|m| m["mass"].as_f64().unwrap()).sum();
+        assert!((mass - 1.0).abs() < 1e-9, "masses sum to 1, not {mass}");
+        for m in matches {
+            let i = m["query"].as_u64().unwrap() as usize;
+            assert_eq!(m["query_position"], query[i]["position"]);
+        }
+    }
+    // Identical models: every feature goes whole onto its twin at no cost.
+    let twins: Vec<&Value> = results.iter().filter(|h| h["distance"] == 0.0).collect();
+    assert_eq!(twins.len(), 2, "star and star-copy");
+    for hit in twins {
+        let matches = hit["explanation"]["matches"].as_array().unwrap();
+        assert_eq!(matches.len(), features);
+        for m in matches {
+            assert_eq!(m["query"], m["result"]);
+            assert_eq!(m["ground_distance"], 0.0);
+            assert_eq!(m["query_position"], m["result_position"]);
+        }
+    }
+    // Without explain, none of it.
+    let plain = app.get_json("/v1/models/star/similar?k=2").await;
+    assert!(plain.get("query").is_none());
+    assert!(plain["results"][0].get("explanation").is_none());
+    let similar = app
+        .get_json("/v1/models/star/similar?k=2&explain=true")
+        .await;
+    assert_eq!(similar["results"][0]["id"], "star-copy");
+    assert_eq!(
+        similar["query"]["features"].as_array().unwrap().len(),
+        features
+    );
+}
+
+#[tokio::test]
+async fn a_comparison_of_twins_shows_the_same_picture_twice() {
+    let app = TestApp::new();
+    with_models(&app).await;
+    let twins = app
+        .get("/v1/compare?a=star&b=star-copy&size=96")
+        .send()
+        .await;
+    assert_eq!(twins.status(), StatusCode::OK, "{}", twins.text());
+    let picture = decode_png(&twins.body);
+    assert_eq!(picture.dimensions(), (192, 96));
+    let differing = (0..96)
+        .flat_map(|y| (0..96).map(move |x| (x, y)))
+        .filter(|&(x, y)| picture.get_pixel(x, y) != picture.get_pixel(x + 96, y))
+        .count();
+    assert_eq!(differing, 0, "matched regions take the same colours");
+    assert!(
+        (0..6)
+            .filter(|&i| shows(&picture, region_colour(i)))
+            .count()
+            >= 3
+    );
+
+    let other = app.get("/v1/compare?a=star&b=horse").send().await;
+    assert_eq!(other.status(), StatusCode::OK);
+    assert_eq!(decode_png(&other.body).dimensions(), (512, 256));
+    let missing = app.get("/v1/compare?a=star&b=nothing").send().await;
+    expect_error(&missing, StatusCode::NOT_FOUND, "not_found");
+    let invalid = app.get("/v1/compare?a=star&b=..").send().await;
+    expect_error(&invalid, StatusCode::BAD_REQUEST, "invalid_id");
+}
+
+#[tokio::test]
+async fn the_page_is_served_to_everyone_and_its_data_only_with_a_key() {
+    let app = TestApp::with_config(|c| {
+        c.inline_keys = Some(Secret("read:page-test-key-0123456789".into()))
+    });
+    let page = app.get("/").send().await;
+    assert_eq!(page.status(), StatusCode::OK);
+    assert!(page.headers()[header::CONTENT_TYPE]
+        .to_str()
+        .unwrap()
+        .starts_with("text/html"));
+    let policy = page.headers()[header::CONTENT_SECURITY_POLICY]
+        .to_str()
+        .unwrap();
+    assert!(policy.contains("script-src 'self'") && policy.contains("frame-ancestors 'none'"));
+    assert!(page.text().contains("/page/app.js"));
+    for (file, kind) in [
+        ("app.js", "text/javascript"),
+        ("view.js", "text/javascript"),
+        ("style.css", "text/css"),
+    ] {
+        let response = app.get(format!("/page/{file}")).send().await;
+        assert_eq!(response.status(), StatusCode::OK, "{file}");
+        assert!(response.headers()[header::CONTENT_TYPE]
+            .to_str()
+            .unwrap()
+            .starts_with(kind));
+    }
+    let missing = app.get("/page/secret.txt").send().await;
+    expect_error(&missing, StatusCode::NOT_FOUND, "not_found");
+
+    let thumbnail = app.get("/v1/models/x/thumbnail.png").send().await;
+    expect_error(&thumbnail, StatusCode::UNAUTHORIZED, "unauthorized");
+    let listed = app
+        .get("/v1/models")
+        .bearer("page-test-key-0123456789")
+        .send()
+        .await;
+    assert_eq!(listed.status(), StatusCode::OK);
+}
