@@ -88,6 +88,14 @@ pub enum Error {
     #[error("bad labels in {path}: {message}")]
     Labels { path: PathBuf, message: String },
 
+    /// A line of an ingest manifest cannot be used.
+    #[error("{path}, line {line}: {message}")]
+    Manifest {
+        path: PathBuf,
+        line: usize,
+        message: String,
+    },
+
     /// A report file (JSON, Markdown, CSV, a plot or a picture) could not be written.
     #[error("cannot write {path}: {message}")]
     Report { path: PathBuf, message: String },

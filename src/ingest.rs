@@ -1,10 +1,12 @@
-//! Bulk ingest of a mesh folder into the service (`salient ingest`): which file becomes which
-//! model, what each upload carries, and when to retry. The HTTP client itself lives in the
+//! Bulk ingest of a mesh folder or a manifest into the service (`salient ingest`): which file
+//! becomes which model, what each upload carries, and when to retry. The HTTP client itself lives in the
 //! CLI; everything here is plain data, so it is tested without a server.
 
 use std::collections::{BTreeMap, HashSet};
 use std::path::{Component, Path, PathBuf};
 use std::time::Duration;
+
+use serde::Deserialize;
 
 use crate::collection::find_meshes;
 use crate::mesh::load::DirResources;
@@ -24,6 +26,75 @@ pub struct Item {
     /// The first folder below the ingested one, with `class_from_folder`.
     pub class: Option<String>,
     pub format: Format,
+    /// Tags of this model alone (a manifest's), instead of the run's.
+    pub tags: Option<Vec<String>>,
+    /// The id and fields are the library's own (a manifest's): the model is compared with
+    /// what is stored under its id, not looked up by content.
+    pub from_manifest: bool,
+}
+
+/// One line of a manifest (`salient ingest --manifest`): an asset library's own id and
+/// fields for a file.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct Entry {
+    /// Relative to the manifest's folder, or absolute.
+    path: PathBuf,
+    id: Option<String>,
+    name: Option<String>,
+    tags: Option<Vec<String>>,
+    class: Option<String>,
+}
+
+/// The models a JSON Lines manifest names, one `{"path", "id", "name", "tags", "class"}` per
+/// line (all but `path` optional; blank lines skipped). Ids default to [`model_id`] of the
+/// path, names to the file stem. Any bad line fails the whole plan, naming its line, so that
+/// nothing is uploaded from a manifest that says something else than meant.
+pub fn plan_manifest(manifest: &Path) -> Result<Vec<Item>> {
+    let text = std::fs::read_to_string(manifest).map_err(|source| Error::Io {
+        path: manifest.to_path_buf(),
+        source,
+    })?;
+    let folder = manifest.parent().unwrap_or(Path::new("."));
+    let bad = |line: usize, message: String| Error::Manifest {
+        path: manifest.to_path_buf(),
+        line,
+        message,
+    };
+    let mut taken = HashSet::new();
+    let mut items = Vec::new();
+    for (n, line) in text.lines().enumerate().map(|(n, l)| (n + 1, l.trim())) {
+        if line.is_empty() {
+            continue;
+        }
+        let entry: Entry = serde_json::from_str(line).map_err(|e| bad(n, e.to_string()))?;
+        let format = Format::from_path(&entry.path).ok_or_else(|| {
+            bad(
+                n,
+                format!("{} is not a known mesh format", entry.path.display()),
+            )
+        })?;
+        let id = match entry.id {
+            Some(id) => ModelId::parse(&id)
+                .map_err(|e| bad(n, e.to_string()))?
+                .to_string(),
+            None => model_id(&entry.path),
+        };
+        if !taken.insert(id.clone()) {
+            return Err(bad(n, format!("the id {id:?} is given twice")));
+        }
+        items.push(Item {
+            path: folder.join(&entry.path),
+            name: entry.name.unwrap_or_else(|| lossy(entry.path.file_stem())),
+            relative: entry.path,
+            id,
+            class: entry.class,
+            format,
+            tags: entry.tags,
+            from_manifest: true,
+        });
+    }
+    Ok(items)
 }
 
 /// The models the mesh files below `dir` become, in path order. Ids come from the relative
@@ -62,6 +133,8 @@ pub fn plan(dir: &Path, class_from_folder: bool) -> Result<Vec<Item>> {
             relative,
             id,
             class,
+            tags: None,
+            from_manifest: false,
         });
     }
     Ok(items)

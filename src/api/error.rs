@@ -149,6 +149,7 @@ impl From<crate::Error> for AppError {
             E::InvalidParameter { .. } => AppError::bad_request("invalid_parameter", e.to_string()),
             E::Io { .. }
             | E::Labels { .. }
+            | E::Manifest { .. }
             | E::Report { .. }
             | E::CorruptSignature { .. }
             | E::SignatureFormat { .. } => AppError::Internal(e.to_string()),

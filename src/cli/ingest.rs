@@ -26,7 +26,13 @@ use salient::model::Upload;
 #[derive(Debug, clap::Args)]
 pub struct Args {
     /// Folder of meshes, searched recursively (hidden files and folders skipped).
-    dir: PathBuf,
+    #[arg(required_unless_present = "manifest", conflicts_with = "manifest")]
+    dir: Option<PathBuf>,
+    /// A JSON Lines file, one `{"path", "id", "name", "tags", "class"}` per line (paths
+    /// relative to it): the library's own ids and fields. A file already stored under its id
+    /// is skipped, or only its fields are updated when they changed (no re-extraction).
+    #[arg(long)]
+    manifest: Option<PathBuf>,
     /// Base URL of the service, e.g. http://127.0.0.1:8080.
     #[arg(long, env = "SALIENT_SERVER")]
     server: String,
@@ -56,6 +62,8 @@ pub struct Args {
 /// What happened to one file.
 enum Outcome {
     Added,
+    /// Stored already; its fields were changed.
+    Updated,
     Skipped,
     Failed(String),
 }
@@ -71,6 +79,7 @@ struct Failure {
 struct Summary {
     files: usize,
     added: usize,
+    updated: usize,
     skipped: usize,
     failed: usize,
     /// Requests sent again after a 429/502/503/504, a connection error or a timeout.
@@ -168,6 +177,54 @@ impl Client {
         Ok(page["models"][0]["id"].as_str().map(String::from))
     }
 
+    /// The stored record of `id`, if there is one.
+    async fn record(&self, id: &str) -> Result<Option<Value>, String> {
+        let url = format!("{}/v1/models/{id}", self.base);
+        let response = self.send(|| self.http.get(&url)).await?;
+        match response.status() {
+            StatusCode::NOT_FOUND => Ok(None),
+            s if s.is_success() => response.json().await.map(Some).map_err(chain),
+            _ => Err(describe(response).await),
+        }
+    }
+
+    /// Sets a stored model's fields to `fields` (JSON `name`, `tags`, `class`).
+    async fn patch(&self, id: &str, fields: &Value) -> Result<(), String> {
+        let url = format!("{}/v1/models/{id}", self.base);
+        let response = self.send(|| self.http.patch(&url).json(fields)).await?;
+        if response.status().is_success() {
+            Ok(())
+        } else {
+            Err(describe(response).await)
+        }
+    }
+
+    /// For a manifest's item: skipped when its id holds this upload with these fields,
+    /// updated when only the fields differ; `None` when it must be uploaded.
+    async fn compare_stored(
+        &self,
+        item: &Item,
+        upload: &Upload,
+        tags: &[String],
+    ) -> Option<Outcome> {
+        let fields = serde_json::json!({"name": item.name, "tags": tags, "class": item.class});
+        let stored = match self.record(&item.id).await {
+            Ok(Some(stored)) if stored["content_hash"] == upload.content_hash() => stored,
+            Ok(_) => return None,
+            Err(reason) => return Some(Outcome::Failed(reason)),
+        };
+        if ["name", "tags", "class"]
+            .iter()
+            .all(|k| stored[k] == fields[k])
+        {
+            return Some(Outcome::Skipped);
+        }
+        Some(match self.patch(&item.id, &fields).await {
+            Ok(()) => Outcome::Updated,
+            Err(reason) => Outcome::Failed(reason),
+        })
+    }
+
     async fn ingest(&self, item: Item, tags: Option<&str>) -> Outcome {
         let read = {
             let item = item.clone();
@@ -178,14 +235,31 @@ impl Client {
             Ok(Err(e)) => return Outcome::Failed(e.to_string()),
             Err(e) => return Outcome::Failed(e.to_string()),
         };
-        match self.find(upload.content_hash()).await {
-            Ok(Some(_)) => return Outcome::Skipped,
-            Ok(None) => {}
-            Err(reason) => return Outcome::Failed(reason),
+        let tags: Vec<String> = match &item.tags {
+            Some(own) => own.clone(),
+            None => tags
+                .into_iter()
+                .flat_map(|t| t.split(','))
+                .map(|t| t.trim().to_string())
+                .filter(|t| !t.is_empty())
+                .collect(),
+        };
+        if item.from_manifest {
+            if let Some(outcome) = self.compare_stored(&item, &upload, &tags).await {
+                return outcome;
+            }
+        } else {
+            match self.find(upload.content_hash()).await {
+                Ok(Some(_)) => return Outcome::Skipped,
+                Ok(None) => {}
+                Err(reason) => return Outcome::Failed(reason),
+            }
         }
         let mut query = vec![("id", item.id.clone()), ("name", item.name.clone())];
         query.extend(item.class.clone().map(|c| ("class", c)));
-        query.extend(tags.map(|t| ("tags", t.to_string())));
+        if !tags.is_empty() {
+            query.push(("tags", tags.join(",")));
+        }
         let url = format!("{}/v1/models", self.base);
         let file_name = item
             .relative
@@ -231,8 +305,12 @@ fn form(upload: &Upload, file_name: String) -> Form {
 
 pub fn run(args: Args) -> anyhow::Result<()> {
     let clock = Instant::now();
-    let items = ingest::plan(&args.dir, args.class_from_folder)
-        .with_context(|| format!("cannot list the meshes in {}", args.dir.display()))?;
+    let items = match (&args.manifest, &args.dir) {
+        (Some(manifest), _) => ingest::plan_manifest(manifest)?,
+        (None, Some(dir)) => ingest::plan(dir, args.class_from_folder)
+            .with_context(|| format!("cannot list the meshes in {}", dir.display()))?,
+        (None, None) => bail!("give a folder or --manifest FILE"),
+    };
     let base = args.server.trim_end_matches('/').to_string();
     reqwest::Url::parse(&base).with_context(|| format!("invalid server URL {base:?}"))?;
     let mut headers = reqwest::header::HeaderMap::new();
@@ -294,6 +372,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let mut summary = Summary {
         files: items.len(),
         added: 0,
+        updated: 0,
         skipped: 0,
         failed: 0,
         retries: client.retries.load(Ordering::Relaxed),
@@ -303,6 +382,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     for (index, outcome) in outcomes {
         match outcome {
             Outcome::Added => summary.added += 1,
+            Outcome::Updated => summary.updated += 1,
             Outcome::Skipped => summary.skipped += 1,
             Outcome::Failed(reason) => {
                 summary.failed += 1;
@@ -318,8 +398,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         println!("{}", serde_json::to_string_pretty(&summary)?);
     } else {
         println!(
-            "added {}, skipped {}, failed {} of {} files in {:.1} s ({} retries)",
+            "added {}, updated {}, skipped {}, failed {} of {} files in {:.1} s ({} retries)",
             summary.added,
+            summary.updated,
             summary.skipped,
             summary.failed,
             summary.files,

@@ -54,11 +54,20 @@ fn copy_fixture(name: &str, to: &Path) {
 
 /// Runs `salient ingest DIR --server URL --json …`: the output and the parsed summary.
 fn ingest(dir: &Path, server: &Server, flags: &[&str]) -> (Output, Value) {
+    run_ingest(dir.as_os_str(), server, flags)
+}
+
+/// Runs `salient ingest --manifest FILE --server URL --json`.
+fn ingest_manifest(manifest: &Path, server: &Server) -> (Output, Value) {
+    run_ingest("--manifest".as_ref(), server, &[manifest.to_str().unwrap()])
+}
+
+fn run_ingest(first: &std::ffi::OsStr, server: &Server, flags: &[&str]) -> (Output, Value) {
     let out = Command::new(BIN)
         .arg("ingest")
-        .arg(dir)
-        .args(["--server", &server.url, "--json"])
+        .arg(first)
         .args(flags)
+        .args(["--server", &server.url, "--json"])
         .output()
         .expect("the client runs");
     let summary = serde_json::from_slice(&out.stdout).unwrap_or_else(|e| {
@@ -168,6 +177,105 @@ fn a_corrupt_file_fails_with_its_reason_while_the_rest_succeed() {
     assert!(String::from_utf8_lossy(&out.stderr).contains("error: 2 of 3 files failed"));
     let ids: Vec<_> = models(&server).iter().map(|m| m["id"].clone()).collect();
     assert_eq!(ids, ["good"]);
+}
+
+#[test]
+fn a_manifest_gives_the_librarys_ids_and_fields_and_updates_them_without_re_extraction() {
+    let dir = tempfile::tempdir().unwrap();
+    let root = dir.path();
+    copy_fixture("capod_horse_m155.obj", &root.join("meshes/horse.obj"));
+    copy_fixture("gltf_external/tetra.gltf", &root.join("meshes/tetra.gltf"));
+    copy_fixture("gltf_external/tetra.bin", &root.join("meshes/tetra.bin"));
+    let manifest = root.join("catalogue.jsonl");
+    let write = |horse_tags: &str| {
+        std::fs::write(
+            &manifest,
+            format!(
+                r#"{{"path": "meshes/horse.obj", "id": "sku-1", "name": "Horse", "tags": [{horse_tags}], "class": "animal"}}
+
+{{"path": "meshes/tetra.gltf", "id": "sku-2"}}
+{{"path": "meshes/horse.obj", "id": "sku-3", "name": "Horse (copy)"}}
+"#
+            ),
+        )
+        .unwrap()
+    };
+    write(r#""farm""#);
+    let store = tempfile::tempdir().unwrap();
+    let server = serve(&store, &[]);
+
+    let (out, summary) = ingest_manifest(&manifest, &server);
+    assert!(out.status.success(), "{summary}");
+    assert_eq!(
+        counts(&summary),
+        [3, 3, 0, 0],
+        "a copy under its own id is added too"
+    );
+    let stored = models(&server);
+    let fields: Vec<_> = stored
+        .iter()
+        .map(|m| {
+            (
+                m["id"].as_str().unwrap(),
+                m["name"].as_str().unwrap(),
+                m["tags"].clone(),
+                m["class"].as_str(),
+            )
+        })
+        .collect();
+    assert_eq!(
+        fields,
+        [
+            (
+                "sku-1",
+                "Horse",
+                serde_json::json!(["farm"]),
+                Some("animal")
+            ),
+            ("sku-2", "tetra", serde_json::json!([]), None),
+            ("sku-3", "Horse (copy)", serde_json::json!([]), None),
+        ]
+    );
+
+    // New tags for one model: it alone is updated, and not re-extracted.
+    write(r#""farm", "brown""#);
+    let (out, summary) = ingest_manifest(&manifest, &server);
+    assert!(out.status.success(), "{summary}");
+    assert_eq!(counts(&summary), [3, 0, 2, 0], "{summary}");
+    assert_eq!(summary["updated"], 1);
+    let after = models(&server);
+    assert_eq!(after[0]["tags"], serde_json::json!(["farm", "brown"]));
+    assert_eq!(after[0]["created_unix"], stored[0]["created_unix"]);
+    let metrics = get(&server, "/metrics");
+    let extractions = metrics
+        .lines()
+        .find(|l| l.starts_with("salient_extraction_seconds_count"))
+        .unwrap();
+    assert!(
+        extractions.ends_with(" 3"),
+        "three extractions in all: {extractions}"
+    );
+
+    // A bad line stops the run before anything is sent, naming the line.
+    std::fs::write(
+        &manifest,
+        "{\"path\": \"meshes/horse.obj\", \"id\": \"sku-9\"}\n{\"path\": 7}\n",
+    )
+    .unwrap();
+    let out = Command::new(BIN)
+        .args([
+            "ingest",
+            "--manifest",
+            manifest.to_str().unwrap(),
+            "--server",
+            &server.url,
+        ])
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(stderr.contains("catalogue.jsonl, line 2"), "{stderr}");
+    assert_eq!(models(&server).len(), 3);
 }
 
 #[test]
