@@ -87,6 +87,7 @@ def main():
     parser.add_argument("--screenshots", default=os.environ.get(
         "SALIENT_SCREENSHOTS", str(ROOT / "target" / "browser-screenshots")))
     parser.add_argument("--headed", action="store_true", help="show the browser (debugging)")
+    parser.add_argument("--timing-mesh", help="also time drop-to-results for this mesh (not a check)")
     args = parser.parse_args()
     if not args.url or not args.key:
         parser.error("the server URL and an API key are needed (--url, --key)")
@@ -335,6 +336,15 @@ def main():
                 if console_errors:
                     print("browser: console errors so far:\n  " + "\n  ".join(console_errors), file=sys.stderr)
                 break
+        if args.timing_mesh and not failed:
+            # A measurement for the notes, not a check: upload to results with thumbnails shown.
+            mark_results("before-timing")
+            t0 = time.monotonic()
+            page.set_input_files("#query-file", args.timing_mesh)
+            results_changed("before-timing")
+            wait_thumbs("#results .result", "timing")
+            print(f"browser: drop to results with thumbnails for {args.timing_mesh}: "
+                  f"{time.monotonic() - t0:.2f} s")
         browser.close()
 
     seconds = time.monotonic() - started
