@@ -49,6 +49,9 @@ pub struct Config {
     pub metrics_open: bool,
     /// The models' up axis, for thumbnails and 3D views.
     pub up_axis: UpAxis,
+    /// Requests a minute each API key may make (in bursts of as many); beyond, 429 with
+    /// `Retry-After`. 0: no limit (a bulk ingest sends a few requests per model).
+    pub requests_per_minute: u32,
 }
 
 /// A value that must not be printed: its `Debug` says only that it is there.
@@ -83,6 +86,7 @@ impl Default for Config {
             allow_anonymous: false,
             metrics_open: false,
             up_axis: UpAxis::Y,
+            requests_per_minute: 0,
         }
     }
 }

@@ -39,6 +39,9 @@ pub enum AppError {
     /// A well-formed mesh that cannot be used (no triangles, degenerate, …).
     #[error("{0}")]
     Unprocessable(String),
+    /// The key made more requests than its rate allows: retry later.
+    #[error("too many requests with this API key; retry in {retry_after_secs} s")]
+    RateLimited { retry_after_secs: u64 },
     /// The extraction queue is full: retry later.
     #[error("the extraction queue is full; retry in {retry_after_secs} s")]
     Overloaded { retry_after_secs: u64 },
@@ -94,6 +97,7 @@ impl AppError {
                 (StatusCode::UNSUPPORTED_MEDIA_TYPE, "unsupported_format")
             }
             AppError::Unprocessable(_) => (StatusCode::UNPROCESSABLE_ENTITY, "unusable_mesh"),
+            AppError::RateLimited { .. } => (StatusCode::TOO_MANY_REQUESTS, "rate_limited"),
             AppError::Overloaded { .. } => (StatusCode::SERVICE_UNAVAILABLE, "overloaded"),
             AppError::Timeout(_) => (StatusCode::SERVICE_UNAVAILABLE, "timeout"),
             AppError::Internal(_) => (StatusCode::INTERNAL_SERVER_ERROR, "internal"),
@@ -114,7 +118,8 @@ impl IntoResponse for AppError {
             },
         });
         match self {
-            AppError::Overloaded { retry_after_secs } => (
+            AppError::Overloaded { retry_after_secs }
+            | AppError::RateLimited { retry_after_secs } => (
                 status,
                 [(header::RETRY_AFTER, retry_after_secs.to_string())],
                 body,

@@ -81,6 +81,8 @@ pub struct App {
     reindex: reindex::Reindexer,
     /// The API keys accepted now (replaced whole when the key file is read again).
     keys: ArcSwap<KeySet>,
+    /// Requests each key label may still make (`requests_per_minute`), if limited.
+    rates: Option<governor::DefaultKeyedRateLimiter<String>>,
     /// Signatures of recent queries by content hash (see [`App::extract_query`]).
     queries: std::sync::Mutex<lru::LruCache<String, Arc<Signature>>>,
     /// Called on the ranking thread while it holds its catalogue snapshot (tests).
@@ -141,6 +143,7 @@ impl App {
                 "stored signatures are stale and keep serving until they are re-extracted"
             );
         }
+        let config_rate = config.requests_per_minute;
         let pool = Pool::new(
             config.workers,
             config.queue_depth,
@@ -163,6 +166,8 @@ impl App {
             writes: tokio::sync::Mutex::new(()),
             reindex,
             keys: ArcSwap::from_pointee(keys),
+            rates: std::num::NonZeroU32::new(config_rate)
+                .map(|n| governor::RateLimiter::keyed(governor::Quota::per_minute(n))),
             queries: std::sync::Mutex::new(lru::LruCache::new(RECENT_QUERIES)),
             ranking_hook: None,
         })
@@ -208,6 +213,17 @@ impl App {
     /// The progress of online re-extraction, as it changes.
     pub fn reindex_progress(&self) -> tokio::sync::watch::Receiver<ReindexProgress> {
         self.reindex.subscribe()
+    }
+
+    /// How long the key labelled `label` must wait before its next request, if it made too
+    /// many (`requests_per_minute`).
+    fn rate_limited(&self, label: &str) -> Option<std::time::Duration> {
+        use governor::clock::{Clock, DefaultClock};
+        let rates = self.rates.as_ref()?;
+        rates
+            .check_key(&label.to_string())
+            .err()
+            .map(|not_until| not_until.wait_time_from(DefaultClock::default().now()))
     }
 
     /// The signature of a query upload: extracted, or remembered from a recent query with the
@@ -365,6 +381,10 @@ fn describe_security(api: &mut utoipa::openapi::OpenApi) {
                 "403".into(),
                 error(&format!("The key's scope is below {scope}")).into(),
             );
+            responses.insert(
+                "429".into(),
+                error("The key made more requests than `requests_per_minute` allows; retry after `Retry-After` seconds").into(),
+            );
         }
     }
 }
@@ -493,6 +513,12 @@ async fn authorize(State(app): State<AppState>, request: Request, next: Next) ->
         Some(None) => AppError::Unauthorized("the API key is not valid".into()),
         Some(Some((scope, label))) => {
             tracing::Span::current().record("key", label);
+            if let Some(wait) = app.rate_limited(label) {
+                return AppError::RateLimited {
+                    retry_after_secs: wait.as_secs() + 1,
+                }
+                .into_response();
+            }
             if scope >= needed {
                 drop(keys);
                 return next.run(request).await;

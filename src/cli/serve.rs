@@ -57,6 +57,9 @@ pub struct Args {
     /// (CAD, 3D printing).
     #[arg(long, env = "SALIENT_UP_AXIS", value_enum)]
     up_axis: Option<UpAxis>,
+    /// Requests a minute per API key, 0 for no limit; beyond, 429 with `Retry-After`.
+    #[arg(long, env = "SALIENT_REQUESTS_PER_MINUTE")]
+    requests_per_minute: Option<u32>,
     /// Origins allowed by CORS, comma-separated (`*` for any).
     #[arg(long, env = "SALIENT_CORS_ORIGINS", value_delimiter = ',')]
     cors_origins: Option<Vec<String>>,
@@ -83,6 +86,7 @@ impl Args {
         config.allow_anonymous = a.allow_anonymous.unwrap_or(config.allow_anonymous);
         config.metrics_open = a.metrics_open.unwrap_or(config.metrics_open);
         config.up_axis = a.up_axis.unwrap_or(config.up_axis);
+        config.requests_per_minute = a.requests_per_minute.unwrap_or(config.requests_per_minute);
         // Keys are secrets: the environment is the one place they come from, so that they
         // appear in no command line (`ps`) and no configuration file.
         config.inline_keys = std::env::var("SALIENT_API_KEYS").ok().map(Secret);

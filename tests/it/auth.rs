@@ -1,4 +1,4 @@
-//! API keys: each route's scope, 401 and 403 in the JSON shape, keys that never show, safe
+//! API keys: each route's scope, 401 and 403 in the JSON shape, a rate per key, keys that never show, safe
 //! defaults on a network address, key files made by `salient keys new` and read again on
 //! SIGHUP, and the ingest client with a key.
 
@@ -21,6 +21,35 @@ fn keyed() -> TestApp {
     TestApp::with_config(|config| {
         config.inline_keys = Some(Secret(format!("read:{READ},write:{WRITE},admin:{ADMIN}")));
     })
+}
+
+#[tokio::test]
+async fn each_key_has_its_own_rate_and_is_told_when_to_come_back() {
+    let app = TestApp::with_config(|config| {
+        config.inline_keys = Some(Secret(format!("read:{READ},write:{WRITE}")));
+        config.requests_per_minute = 3;
+    });
+    for _ in 0..3 {
+        let allowed = app.get("/v1/models").bearer(READ).send().await;
+        assert_eq!(allowed.status, StatusCode::OK);
+    }
+    let limited = app.get("/v1/models").bearer(READ).send().await;
+    expect_error(&limited, StatusCode::TOO_MANY_REQUESTS, "rate_limited");
+    let wait: u64 = limited.headers["retry-after"]
+        .to_str()
+        .unwrap()
+        .parse()
+        .unwrap();
+    assert!(
+        (1..=21).contains(&wait),
+        "one request in 20 s comes back: {wait}"
+    );
+    // Another key, and the open routes, are not held back by it.
+    assert_eq!(
+        app.get("/v1/models").bearer(WRITE).send().await.status,
+        StatusCode::OK
+    );
+    assert_eq!(app.get("/healthz").send().await.status, StatusCode::OK);
 }
 
 #[tokio::test]
