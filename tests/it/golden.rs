@@ -6,6 +6,7 @@
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
+use axum::http::StatusCode;
 use salient::api::Config;
 use salient::signature::{Signature, Staleness, SIGNATURE_FORMAT};
 use salient::store::{SledStore, Store};
@@ -86,7 +87,7 @@ fn release_0_1_0_signature_files_read_as_they_were_written() {
 async fn release_0_1_0_store_opens_lists_serves_and_ranks() {
     let dir = tempfile::tempdir().unwrap();
     let store = golden_store(&dir.path().join("store"));
-    assert_eq!(SledStore::stored_version(store.db()).unwrap(), 2);
+    assert_eq!(SledStore::stored_version(store.db()).unwrap(), 3);
     for loaded in store.load_all() {
         let loaded = loaded.unwrap();
         assert_eq!(
@@ -110,6 +111,12 @@ async fn release_0_1_0_store_opens_lists_serves_and_ranks() {
         assert_contains(&expected(&format!("{id}.record.json")), &record, id);
         let signature = app.get_json(&format!("/v1/models/{id}/signature")).await;
         assert_contains(&expected(&format!("{id}.signature.json")), &signature, id);
+        // Pictures of models stored before previews existed, from their stale signatures.
+        for picture in ["thumbnail.png?features=true", "preview.glb"] {
+            let response = app.get(format!("/v1/models/{id}/{picture}")).send().await;
+            assert_eq!(response.status(), StatusCode::OK, "{id} {picture}");
+            assert!(!response.body.is_empty());
+        }
     }
     for method in ["ecc", "d2", "lfd"] {
         let ranked = app

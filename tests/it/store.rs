@@ -36,7 +36,7 @@ fn a_version_0_store_is_migrated_at_open() {
         assert_eq!(SledStore::stored_version(&db).unwrap(), 0);
     }
     let store = SledStore::open(dir.path()).unwrap();
-    assert_eq!(SledStore::stored_version(store.db()).unwrap(), 2);
+    assert_eq!(SledStore::stored_version(store.db()).unwrap(), 3);
     let names: Vec<_> = store
         .db()
         .tree_names()
@@ -50,6 +50,7 @@ fn a_version_0_store_is_migrated_at_open() {
         "blob_refs",
         "content",
         "state",
+        "previews",
     ] {
         assert!(names.contains(&tree.to_string()), "{names:?}");
     }
@@ -71,7 +72,7 @@ fn a_store_from_a_newer_salient_is_refused() {
     match reopen(dir.path()) {
         Err(StoreError::Incompatible {
             found: 99,
-            supported: 2,
+            supported: 3,
         }) => {}
         other => panic!("expected a refusal, got {:?}", other.map(|_| ())),
     }
