@@ -35,6 +35,7 @@ use tower_http::trace::TraceLayer;
 use utoipa::OpenApi;
 use utoipa_axum::router::OpenApiRouter;
 
+use crate::mesh::Format;
 use crate::model::Upload;
 use crate::pipeline::signature_of_file;
 use crate::signature::{Signature, Staleness};
@@ -320,6 +321,7 @@ impl App {
         description = "Content-based 3D model retrieval: upload a triangle mesh, get the most similar stored models, ranked by extended cone-curvature salient features under a penalised Earth Mover's Distance.",
         license(name = "MIT OR Apache-2.0")
     ),
+    components(schemas(upload::MeshFile, upload::MeshForm)),
     tags(
         (name = "models", description = "Stored models"),
         (name = "search", description = "Similarity search and extraction"),
@@ -389,6 +391,43 @@ fn describe_security(api: &mut utoipa::openapi::OpenApi) {
     }
 }
 
+/// The operations whose body is a mesh upload ([`upload::MeshUpload`]): the file raw with its
+/// media type, or a multipart form.
+const MESH_UPLOADS: [&str; 4] = ["/v1/models", "/v1/search", "/v1/extract", "/v1/preview"];
+
+/// Gives each of [`MESH_UPLOADS`] its request body: one description instead of a copy in
+/// every handler's annotation (utoipa cannot share a `request_body` between them).
+fn describe_uploads(api: &mut utoipa::openapi::OpenApi) {
+    use utoipa::openapi::request_body::RequestBodyBuilder;
+    use utoipa::openapi::{ContentBuilder, Ref, Required};
+    let content = |schema: &str| {
+        ContentBuilder::new()
+            .schema(Some(Ref::from_schema_name(schema)))
+            .build()
+    };
+    let mut body = RequestBodyBuilder::new()
+        .description(Some(
+            "The mesh (raw, with its content type) or a multipart form",
+        ))
+        .required(Some(Required::True));
+    let media_types = Format::ALL.map(Format::media_type);
+    for media_type in media_types.iter().chain(&["application/octet-stream"]) {
+        body = body.content(*media_type, content("MeshFile"));
+    }
+    let body = body
+        .content("multipart/form-data", content("MeshForm"))
+        .build();
+    for path in MESH_UPLOADS {
+        let operation = api
+            .paths
+            .paths
+            .get_mut(path)
+            .and_then(|item| item.post.as_mut())
+            .expect("every mesh upload route is a documented POST");
+        operation.request_body = Some(body.clone());
+    }
+}
+
 /// The routes and their OpenAPI description, from the same handler annotations.
 fn routes() -> OpenApiRouter<AppState> {
     OpenApiRouter::with_openapi(ApiDoc::openapi())
@@ -421,6 +460,7 @@ fn routes() -> OpenApiRouter<AppState> {
 /// The OpenAPI document of the service, as committed in `openapi.yaml`.
 pub fn openapi_yaml() -> String {
     let (_, mut api) = routes().split_for_parts();
+    describe_uploads(&mut api);
     describe_security(&mut api);
     api.to_yaml().expect("the OpenAPI document serialises")
 }

@@ -8,9 +8,7 @@ use axum::Json;
 use serde::{Deserialize, Serialize};
 
 use super::error::{AppError, ErrorBody};
-use super::upload::{
-    AppJson, AppPath, AppQuery, MeshFile, MeshForm, MeshUpload, ModelFields, ModelPath,
-};
+use super::upload::{AppJson, AppPath, AppQuery, MeshUpload, ModelFields, ModelPath};
 use super::AppState;
 use crate::model::{ModelId, ModelRecord};
 use crate::signature::Signature;
@@ -28,16 +26,6 @@ use crate::signature::Signature;
     path = "/v1/models",
     tag = "models",
     params(ModelFields),
-    request_body(description = "The mesh (raw) or a multipart form", content(
-            (MeshFile = "model/obj"),
-            (MeshFile = "model/gltf-binary"),
-            (MeshFile = "model/gltf+json"),
-            (MeshFile = "model/stl"),
-            (MeshFile = "model/ply"),
-            (MeshFile = "model/x-off"),
-            (MeshFile = "application/octet-stream"),
-            (MeshForm = "multipart/form-data")
-        )),
     responses(
         (status = 201, description = "Added", body = ModelRecord),
         (status = 200, description = "Replaced, or already present", body = ModelRecord),

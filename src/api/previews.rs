@@ -16,7 +16,7 @@ use serde::Deserialize;
 use super::error::{AppError, ErrorBody};
 use super::files::not_modified;
 use super::models::no_model;
-use super::upload::{AppPath, AppQuery, MeshFile, MeshForm, MeshUpload, ModelPath};
+use super::upload::{AppPath, AppQuery, MeshFile, MeshUpload, ModelPath};
 use super::AppState;
 use crate::model::ModelId;
 use crate::pipeline::preview_of_file;
@@ -239,16 +239,6 @@ pub async fn get_preview(
     path = "/v1/preview",
     tag = "search",
     params(QueryPreviewQuery),
-    request_body(description = "The mesh (raw, with its content type) or a multipart form", content(
-            (MeshFile = "model/obj"),
-            (MeshFile = "model/gltf-binary"),
-            (MeshFile = "model/gltf+json"),
-            (MeshFile = "model/stl"),
-            (MeshFile = "model/ply"),
-            (MeshFile = "model/x-off"),
-            (MeshFile = "application/octet-stream"),
-            (MeshForm = "multipart/form-data")
-        )),
     responses(
         (status = 200, description = "The mesh", content_type = "model/gltf-binary", body = MeshFile),
         (status = 400, description = "Bad mesh file", body = ErrorBody),

@@ -9,7 +9,7 @@ use serde::{Deserialize, Serialize};
 
 use super::error::{AppError, ErrorBody};
 use super::models::no_model;
-use super::upload::{AppPath, AppQuery, MeshFile, MeshForm, MeshUpload, ModelPath};
+use super::upload::{AppPath, AppQuery, MeshUpload, ModelPath};
 use super::AppState;
 use crate::model::ModelId;
 use crate::params::SimilarityParams;
@@ -251,16 +251,6 @@ async fn rank(
     path = "/v1/search",
     tag = "search",
     params(SearchQuery),
-    request_body(description = "The query mesh (raw, with its content type) or a multipart form", content(
-            (MeshFile = "model/obj"),
-            (MeshFile = "model/gltf-binary"),
-            (MeshFile = "model/gltf+json"),
-            (MeshFile = "model/stl"),
-            (MeshFile = "model/ply"),
-            (MeshFile = "model/x-off"),
-            (MeshFile = "application/octet-stream"),
-            (MeshForm = "multipart/form-data")
-        )),
     responses(
         (status = 200, description = "Ranked models", body = SearchResponse),
         (status = 400, description = "Bad query or mesh file", body = ErrorBody),
@@ -323,16 +313,6 @@ pub async fn similar(
     post,
     path = "/v1/extract",
     tag = "search",
-    request_body(description = "The mesh (raw, with its content type) or a multipart form", content(
-            (MeshFile = "model/obj"),
-            (MeshFile = "model/gltf-binary"),
-            (MeshFile = "model/gltf+json"),
-            (MeshFile = "model/stl"),
-            (MeshFile = "model/ply"),
-            (MeshFile = "model/x-off"),
-            (MeshFile = "application/octet-stream"),
-            (MeshForm = "multipart/form-data")
-        )),
     responses(
         (status = 200, description = "The signature (see `salient extract --json`)", body = Object),
         (status = 400, description = "Bad mesh file", body = ErrorBody),
