@@ -41,8 +41,9 @@ pub fn find_meshes(dir: &Path) -> Result<Vec<PathBuf>> {
     Ok(files)
 }
 
-/// Signatures on disk, one file per (file content, parameters, signature format) triple: a
-/// new format may hold descriptors an old entry lacks.
+/// Signatures on disk, one file per (file content, extraction parameters, signature format)
+/// triple: a new format may hold descriptors an old entry lacks. Ranking parameters are not
+/// part of the key ([`Params::extraction_key`]).
 #[derive(Debug, Clone)]
 pub struct SignatureCache {
     dir: PathBuf,
@@ -61,7 +62,7 @@ impl SignatureCache {
     pub fn new(dir: impl Into<PathBuf>, params: &Params) -> Self {
         Self {
             dir: dir.into(),
-            params_key: serde_json::to_vec(params).expect("parameters serialise"),
+            params_key: params.extraction_key(),
         }
     }
 

@@ -63,6 +63,14 @@ impl Params {
             )
     }
 
+    /// Bytes that name the extraction [`Params::same_extraction`] compares, for keys of
+    /// signature caches: ranking parameters are left out, so retuning them reuses every
+    /// cached signature.
+    pub fn extraction_key(&self) -> Vec<u8> {
+        serde_json::to_vec(&(self.version, &self.mesh, &self.ecc, &self.salient, &self.d2))
+            .expect("parameters serialise")
+    }
+
     /// The paper read literally, where SPEC resolves it otherwise: Definition 3's cone height
     /// ([`HeightRule::Paper`], SPEC §2.4), the candidate cluster of largest norm
     /// ([`CandidateRule::Norm`], §3.1), the area filter on regions ([`RegionRule::Area`],
@@ -138,13 +146,12 @@ impl Params {
                 "d2.bins",
                 "must be between 1 and 4096",
             ),
-            (
-                (0.0..=1.0).contains(&self.similarity.ecc_weight),
-                "similarity.ecc_weight",
-                "must be in [0, 1]",
-            ),
         ];
-        match checks.into_iter().find(|(ok, _, _)| !ok) {
+        match checks
+            .into_iter()
+            .chain(self.similarity.checks())
+            .find(|(ok, _, _)| !ok)
+        {
             Some((_, name, message)) => Err(Error::InvalidParameter { name, message }),
             None => Ok(()),
         }
@@ -315,7 +322,7 @@ impl Default for D2Params {
     }
 }
 
-/// Comparing signatures (SPEC §5).
+/// Comparing signatures (SPEC §5) and fusing the methods' distances (SPEC §9).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct SimilarityParams {
@@ -323,6 +330,12 @@ pub struct SimilarityParams {
     pub ecc_weight: f64,
     /// Multiply the EMD by `max(m, n) / min(m, n)` (Eq. 13).
     pub penalty: bool,
+    /// The penalty's power: `(max(m, n) / min(m, n))^p`. 1 is Eq. 13; below 1 softens it
+    /// for classes whose feature counts vary. The hybrid's ECC part has its own
+    /// ([`HybridParams::penalty_power`]).
+    pub penalty_power: f64,
+    /// The `hybrid` method's parts.
+    pub hybrid: HybridParams,
 }
 
 impl Default for SimilarityParams {
@@ -330,6 +343,93 @@ impl Default for SimilarityParams {
         Self {
             ecc_weight: 0.5,
             penalty: true,
+            penalty_power: 1.0,
+            hybrid: HybridParams::default(),
+        }
+    }
+}
+
+impl SimilarityParams {
+    /// These parameters with the hybrid's penalty power: what its ECC part compares with.
+    pub fn hybrid_ecc(&self) -> SimilarityParams {
+        SimilarityParams {
+            penalty_power: self.hybrid.penalty_power,
+            ..self.clone()
+        }
+    }
+
+    fn checks(&self) -> [(bool, &'static str, &'static str); 4] {
+        let h = &self.hybrid;
+        let parts = [&h.ecc, &h.d2, &h.lfd];
+        [
+            (
+                (0.0..=1.0).contains(&self.ecc_weight),
+                "similarity.ecc_weight",
+                "must be in [0, 1]",
+            ),
+            (
+                [self.penalty_power, h.penalty_power]
+                    .iter()
+                    .all(|p| (0.0..=4.0).contains(p)),
+                "similarity.penalty_power",
+                "must be in [0, 4], also the hybrid's",
+            ),
+            (
+                parts
+                    .iter()
+                    .all(|t| t.weight >= 0.0 && t.weight.is_finite()),
+                "similarity.hybrid",
+                "weights must be finite and not negative",
+            ),
+            (
+                parts.iter().all(|t| t.scale > 0.0 && t.scale.is_finite())
+                    && parts.iter().any(|t| t.weight > 0.0),
+                "similarity.hybrid",
+                "scales must be positive and finite, and one weight positive",
+            ),
+        ]
+    }
+}
+
+/// One part of the `hybrid` distance: it adds `weight · d / scale`. The scale is fixed (a
+/// typical distance of the part, chosen with the weights), so a hybrid distance depends only
+/// on the two models, never on what else is stored, and lower bounds add up.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Term {
+    pub weight: f64,
+    pub scale: f64,
+}
+
+/// Weights and scales of the `hybrid` method (SPEC §9), chosen by `salient eval tune` on the
+/// tuning halves of both shared collections (`docs/results/tune/`). Ranking parameters:
+/// changing them never makes a signature stale.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct HybridParams {
+    pub ecc: Term,
+    pub d2: Term,
+    pub lfd: Term,
+    /// The count penalty's power in the ECC part (see [`SimilarityParams::penalty_power`]).
+    pub penalty_power: f64,
+}
+
+impl Default for HybridParams {
+    fn default() -> Self {
+        Self {
+            ecc: Term {
+                weight: 0.3,
+                scale: 0.2852372834319666,
+            },
+            d2: Term {
+                weight: 0.05,
+                scale: 0.142275117803365,
+            },
+            lfd: Term {
+                weight: 0.65,
+                scale: 0.042387799564270155,
+            },
+            penalty_power: 0.0,
         }
     }
 }

@@ -6,7 +6,8 @@
 //! their bound, and the visit stops once the next bound exceeds the k-th best distance found.
 //! Because the bound never exceeds the true distance, this returns exactly the top `k` of a
 //! full scan. The LFD method is ranked the same way with its own bound
-//! ([`crate::descriptor::lfd::LfdSummary`]).
+//! ([`crate::descriptor::lfd::LfdSummary`]), and the hybrid with the weighted sum of its
+//! parts' bounds ([`fuse`]).
 
 use std::fmt;
 use std::str::FromStr;
@@ -16,7 +17,7 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::descriptor::LightFieldDescriptor;
-use crate::params::SimilarityParams;
+use crate::params::{HybridParams, SimilarityParams};
 use crate::signature::Signature;
 use crate::similarity::{compare, compare_costs, d2_distance, lower_bound, CostMatrix, Summary};
 
@@ -24,8 +25,11 @@ use crate::similarity::{compare, compare_costs, d2_distance, lower_bound, CostMa
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize, Default)]
 #[serde(rename_all = "lowercase")]
 pub enum Method {
-    /// Salient ECC + region D2 features under the penalised EMD (SPEC §5).
+    /// The default: a weighted sum of the other methods' distances, each divided by a fixed
+    /// scale (SPEC §9, [`fuse`]).
     #[default]
+    Hybrid,
+    /// Salient ECC + region D2 features under the penalised EMD (SPEC §5).
     Ecc,
     /// The global D2 shape distribution baseline (SPEC §6).
     D2,
@@ -36,6 +40,7 @@ pub enum Method {
 impl fmt::Display for Method {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         f.write_str(match self {
+            Method::Hybrid => "hybrid",
             Method::Ecc => "ecc",
             Method::D2 => "d2",
             Method::Lfd => "lfd",
@@ -46,14 +51,10 @@ impl fmt::Display for Method {
 impl FromStr for Method {
     type Err = String;
     fn from_str(s: &str) -> Result<Self, String> {
-        match s.to_ascii_lowercase().as_str() {
-            "ecc" => Ok(Method::Ecc),
-            "d2" => Ok(Method::D2),
-            "lfd" => Ok(Method::Lfd),
-            other => Err(format!(
-                "unknown method `{other}` (expected ecc, d2 or lfd)"
-            )),
-        }
+        Method::ALL
+            .into_iter()
+            .find(|m| m.to_string().eq_ignore_ascii_case(s))
+            .ok_or_else(|| format!("unknown method `{s}` (expected hybrid, ecc, d2 or lfd)"))
     }
 }
 
@@ -61,21 +62,81 @@ impl FromStr for Method {
 /// signature predates the light field descriptor (see [`Method::comparable`]).
 pub fn distance(method: Method, p: &Signature, q: &Signature, params: &SimilarityParams) -> f64 {
     match method {
+        Method::Hybrid => fuse(&params.hybrid, hybrid_parts(p, q, params)),
         Method::Ecc => compare(p, q, params).sim,
         Method::D2 => d2_distance(p, q),
-        Method::Lfd => match (&p.lfd, &q.lfd) {
-            (Some(a), Some(b)) => a.distance(b),
-            _ => f64::INFINITY,
-        },
+        Method::Lfd => lfd_distance(p, q).unwrap_or(f64::INFINITY),
     }
 }
 
+/// The hybrid's part distances (ECC, D2, LFD): `None` for a part one side lacks or the
+/// hybrid does not weigh.
+pub fn hybrid_parts(p: &Signature, q: &Signature, params: &SimilarityParams) -> [Option<f64>; 3] {
+    let h = &params.hybrid;
+    let ecc =
+        (h.ecc.weight > 0.0 && has_features(p, q)).then(|| compare(p, q, &params.hybrid_ecc()).sim);
+    [ecc, Some(d2_distance(p, q)), hybrid_lfd(h, p, q)]
+}
+
+/// Whether both signatures have salient features, without which the EMD is undefined.
+fn has_features(p: &Signature, q: &Signature) -> bool {
+    !p.features.is_empty() && !q.features.is_empty()
+}
+
+/// The LFD distance when both have the descriptor.
+fn lfd_distance(p: &Signature, q: &Signature) -> Option<f64> {
+    Some(p.lfd.as_ref()?.distance(q.lfd.as_ref()?))
+}
+
+/// The LFD part of the hybrid, computed only when it weighs anything.
+fn hybrid_lfd(h: &HybridParams, p: &Signature, q: &Signature) -> Option<f64> {
+    (h.lfd.weight > 0.0).then(|| lfd_distance(p, q)).flatten()
+}
+
+/// The hybrid distance `Σ wᵢ · dᵢ / sᵢ` over the parts ECC, D2, LFD (SPEC §9), from each
+/// part's distance, or from a lower bound of each: the sum grows with every part, so bounds
+/// of the parts make a bound of the sum. A part missing on either side (`None`) is left out
+/// and the others are scaled up to the full weight, so a model stored before a descriptor
+/// existed is still ranked, on what it has (responses count such models as `partial`).
+pub fn fuse(h: &HybridParams, parts: [Option<f64>; 3]) -> f64 {
+    let terms = contributions(h, parts);
+    if terms.iter().all(Option::is_none) {
+        return f64::INFINITY;
+    }
+    terms.into_iter().flatten().sum()
+}
+
+/// Each part's term of [`fuse`]'s sum (ECC, D2, LFD), `None` for a part left out: what a
+/// result's explanation shows.
+pub fn contributions(h: &HybridParams, parts: [Option<f64>; 3]) -> [Option<f64>; 3] {
+    let terms = [h.ecc, h.d2, h.lfd];
+    let weighed = |k: usize| terms[k].weight > 0.0;
+    let total: f64 = (0..3)
+        .filter(|&k| weighed(k))
+        .map(|k| terms[k].weight)
+        .sum();
+    let used: f64 = (0..3)
+        .filter(|&k| weighed(k) && parts[k].is_some())
+        .map(|k| terms[k].weight)
+        .sum();
+    std::array::from_fn(|k| {
+        let d = parts[k].filter(|_| weighed(k))?;
+        Some(terms[k].weight * d / terms[k].scale * (total / used))
+    })
+}
+
 impl Method {
-    pub const ALL: [Method; 3] = [Method::Ecc, Method::D2, Method::Lfd];
+    pub const ALL: [Method; 4] = [Method::Hybrid, Method::Ecc, Method::D2, Method::Lfd];
 
     /// Whether `signature` holds what this method compares.
     pub fn comparable(self, signature: &Signature) -> bool {
         self != Method::Lfd || signature.lfd.is_some()
+    }
+
+    /// Whether `signature` holds every part this method weighs; a comparable signature
+    /// that is not complete is ranked on part of the distance (see [`fuse`]).
+    pub fn complete(self, signature: &Signature) -> bool {
+        self.comparable(signature) && (self != Method::Hybrid || signature.lfd.is_some())
     }
 }
 
@@ -190,6 +251,7 @@ impl Index {
         keep: &(dyn Fn(&str) -> bool + Sync),
     ) -> Ranking {
         match method {
+            Method::Hybrid => self.search_hybrid(query, k, keep),
             Method::Ecc => self.search_ecc(query, k, keep),
             Method::Lfd => self.search_lfd(query, k, keep),
             // A D2 distance costs less than any bound would.
@@ -206,6 +268,18 @@ impl Index {
             .count()
     }
 
+    /// Entries `keep` accepts that `method` ranks on part of its distance only (see
+    /// [`Method::complete`]); they are re-extracted in the background, and responses say how
+    /// many.
+    pub fn partial(&self, method: Method, keep: &(dyn Fn(&str) -> bool + Sync)) -> usize {
+        self.entries
+            .iter()
+            .filter(|e| {
+                method.comparable(&e.signature) && !method.complete(&e.signature) && keep(&e.id)
+            })
+            .count()
+    }
+
     /// [`Index::search_where`] with other similarity parameters than the index was built for
     /// (a query-time `W`): the bounds' summaries do not hold for them, so this ranks
     /// exhaustively unless the parameters are the index's own.
@@ -217,7 +291,7 @@ impl Index {
         params: &SimilarityParams,
         keep: &(dyn Fn(&str) -> bool + Sync),
     ) -> Ranking {
-        if method != Method::Ecc || *params == self.params {
+        if matches!(method, Method::D2 | Method::Lfd) || *params == self.params {
             return self.search_where(query, k, method, keep);
         }
         self.exhaustive(query, k, method, params, keep)
@@ -273,6 +347,47 @@ impl Index {
             |e, kth| {
                 let costs = CostMatrix::new(query, &e.signature, params);
                 (costs.relaxed_bound(params) <= kth).then(|| compare_costs(&costs, params).sim)
+            },
+        )
+    }
+
+    /// The hybrid's ranking: each entry's bound is the fused bounds of its parts (the ECC's
+    /// centroid/projection bound, the exact D2 distance, which costs less than a bound, and the
+    /// LFD's bound); an entry past the bound is rejected by the fused relaxed-EMD bound before
+    /// its EMD is solved.
+    fn search_hybrid(
+        &self,
+        query: &Signature,
+        k: usize,
+        keep: &(dyn Fn(&str) -> bool + Sync),
+    ) -> Ranking {
+        let h = &self.params.hybrid;
+        // The summaries depend on `W` only, which the hybrid's ECC part shares.
+        let params = &self.params.hybrid_ecc();
+        let summary = Summary::of(query, params);
+        let lfd_summary = query.lfd.as_ref().map(|d| d.summary());
+        let lfd_bound = |e: &Entry| match (&lfd_summary, &e.signature.lfd) {
+            (Some(s), Some(d)) if h.lfd.weight > 0.0 => Some(s.lower_bound(&d.summary())),
+            _ => None,
+        };
+        let d2 = |e: &Entry| Some(d2_distance(query, &e.signature));
+        self.pruned(
+            k,
+            |e| keep(&e.id),
+            |e| {
+                let ecc = (h.ecc.weight > 0.0 && has_features(query, &e.signature))
+                    .then(|| lower_bound(&summary, &e.summary, params));
+                fuse(h, [ecc, d2(e), lfd_bound(e)])
+            },
+            |e, kth| {
+                let lfd = hybrid_lfd(h, query, &e.signature);
+                if h.ecc.weight == 0.0 || !has_features(query, &e.signature) {
+                    return Some(fuse(h, [None, d2(e), lfd]));
+                }
+                let costs = CostMatrix::new(query, &e.signature, params);
+                let relaxed = fuse(h, [Some(costs.relaxed_bound(params)), d2(e), lfd]);
+                (relaxed <= kth)
+                    .then(|| fuse(h, [Some(compare_costs(&costs, params).sim), d2(e), lfd]))
             },
         )
     }

@@ -33,10 +33,15 @@ fn rms(a: &[f64], b: &[f64]) -> f64 {
     (sum / a.len().max(1) as f64).sqrt()
 }
 
-/// `max(m, n) / min(m, n)` when enabled, else 1 (Eq. 13).
+/// `max(m, n) / min(m, n)` when enabled (Eq. 13), raised to `penalty_power`; else 1.
 pub fn penalty(m: usize, n: usize, params: &SimilarityParams) -> f64 {
     if params.penalty {
-        m.max(n) as f64 / m.min(n).max(1) as f64
+        let ratio = m.max(n) as f64 / m.min(n).max(1) as f64;
+        if params.penalty_power == 1.0 {
+            ratio
+        } else {
+            ratio.powf(params.penalty_power)
+        }
     } else {
         1.0
     }

@@ -13,7 +13,7 @@ use super::upload::{AppPath, AppQuery, MeshUpload, ModelPath};
 use super::AppState;
 use crate::model::ModelId;
 use crate::params::SimilarityParams;
-use crate::rank::{distance, Method, Ranking};
+use crate::rank::{contributions, distance, hybrid_parts, Method, Ranking};
 use crate::signature::Signature;
 use crate::similarity::explain;
 
@@ -24,9 +24,9 @@ pub struct SearchQuery {
     /// Number of results (default 10; at most the server's `max_k`, 1000 by default).
     #[param(minimum = 1)]
     pub k: Option<usize>,
-    /// `ecc` (salient features, penalised EMD; default), `d2` (global shape distribution) or
-    /// `lfd` (Light Field Descriptor).
-    #[param(value_type = Option<String>, pattern = "^(ecc|d2|lfd)$")]
+    /// `hybrid` (default: the ECC, D2 and LFD distances, weighted), `ecc` (salient features,
+    /// penalised EMD), `d2` (global shape distribution) or `lfd` (Light Field Descriptor).
+    #[param(value_type = Option<String>, pattern = "^(hybrid|ecc|d2|lfd)$")]
     pub method: Option<Method>,
     /// Weight `W` of the ECC distance against the region D2 distance, in [0, 1]. A value other
     /// than the configured one ranks without the bound-based pruning, so it is slower.
@@ -47,8 +47,9 @@ pub struct SearchHit {
     pub name: Option<String>,
     pub tags: Vec<String>,
     pub class: Option<String>,
-    /// Lower is more similar (`SIM` of SPEC §5, the D2 distance, or the LFD distance in
-    /// [0, 1]).
+    /// Lower is more similar: the weighted sum of the parts' distances, each divided by its
+    /// scale (`hybrid`), `SIM` of SPEC §5 (`ecc`), the D2 distance in [0, 1] or the LFD
+    /// distance.
     pub distance: f64,
     /// With `explain=true`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -58,8 +59,12 @@ pub struct SearchHit {
 /// Why a model ranked where it did.
 #[derive(Debug, Serialize, Deserialize, utoipa::ToSchema)]
 pub struct Explanation {
-    /// The distance by each method that can compare the two (`ecc`, `d2`, `lfd`).
+    /// The distance by each method that can compare the two (`hybrid`, `ecc`, `d2`, `lfd`).
     pub distances: std::collections::BTreeMap<String, f64>,
+    /// Each part's term of the hybrid distance (`ecc`, `d2`, `lfd`: weight × distance /
+    /// scale); they sum to `distances.hybrid`. A part left out (a descriptor one side lacks)
+    /// is missing.
+    pub contributions: std::collections::BTreeMap<String, f64>,
     /// The optimal EMD plan between the salient features (paper Eq. 9): each flow from a
     /// query feature to a result feature.
     pub matches: Vec<FeatureMatch>,
@@ -117,6 +122,9 @@ pub struct SearchResponse {
     /// Models left out because their stored signature lacks what the method compares; they
     /// are being re-extracted (`GET /v1/admin/reindex`), and join the rankings when done.
     pub left_out: usize,
+    /// Models ranked on part of the `hybrid` distance, because their stored signature lacks
+    /// one of its descriptors (the others count for it until they are re-extracted).
+    pub partial: usize,
     /// Salient features of the query.
     pub query_features: usize,
     /// With `explain=true`.
@@ -144,7 +152,17 @@ fn explanation(query: &Signature, result: &Signature, params: &SimilarityParams)
             result_position: result.features[m.q].position,
         })
         .collect();
-    Explanation { distances, matches }
+    let parts = hybrid_parts(query, result, params);
+    let contributions = [Method::Ecc, Method::D2, Method::Lfd]
+        .into_iter()
+        .zip(contributions(&params.hybrid, parts))
+        .filter_map(|(m, c)| Some((m.to_string(), c?)))
+        .collect();
+    Explanation {
+        distances,
+        contributions,
+        matches,
+    }
 }
 
 /// Ranks the catalog against `query` off the async threads.
@@ -202,6 +220,7 @@ async fn rank(
                 pruned,
             } = catalog.index.search_with(&query, k, method, &params, &keep);
             let left_out = catalog.index.incomparable(method, &keep);
+            let partial = catalog.index.partial(method, &keep);
             let results = hits
                 .into_iter()
                 .enumerate()
@@ -222,12 +241,12 @@ async fn rank(
                     }
                 })
                 .collect::<Vec<_>>();
-            (results, evaluated, pruned, left_out)
+            (results, evaluated, pruned, left_out, partial)
         })
         .await?;
     let search_seconds = search_clock.elapsed().as_secs_f64();
     app.metrics.search_seconds.observe(search_seconds);
-    let (results, evaluated, pruned, left_out) = results;
+    let (results, evaluated, pruned, left_out, partial) = results;
     Ok(Json(SearchResponse {
         method,
         k,
@@ -235,6 +254,7 @@ async fn rank(
         evaluated,
         pruned,
         left_out,
+        partial,
         query_features,
         query: query_description,
         timings: Timings {

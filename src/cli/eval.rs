@@ -8,7 +8,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 
 use salient::collection::{SignatureCache, CACHE_DIR};
 use salient::eval::retrieval::{self, EvalMethod};
-use salient::eval::{robustness, study, LabelledCollection, Progress};
+use salient::eval::{robustness, study, tune, LabelledCollection, Progress};
 use salient::mesh::load_path;
 use salient::Limits;
 
@@ -28,6 +28,26 @@ enum Command {
     /// Vary W, the penalty, K, flat_max and D_g one at a time; tune on half of each class,
     /// judge on the other half.
     Study(StudyArgs),
+    /// Choose the hybrid's weights, scales and penalty power on the tuning halves of the
+    /// collections together; judge them on the held-out halves.
+    Tune(TuneArgs),
+}
+
+#[derive(Debug, clap::Args)]
+struct TuneArgs {
+    /// The labelled collections.
+    #[arg(required = true)]
+    dirs: Vec<PathBuf>,
+    /// Where tune.json, tune.md and params.json (the chosen setting) go.
+    #[arg(long, default_value = "salient-tune")]
+    out: PathBuf,
+    /// Where signatures are cached: ROOT/NAME for each collection folder NAME (default:
+    /// each collection's own .salient-cache).
+    #[arg(long)]
+    cache_dir: Option<PathBuf>,
+    /// Parameters as JSON (fields left out keep the SPEC defaults).
+    #[arg(long)]
+    params: Option<PathBuf>,
 }
 
 #[derive(Debug, clap::Args)]
@@ -60,8 +80,9 @@ struct RobustnessArgs {
 struct RetrievalArgs {
     /// The labelled collection.
     dir: PathBuf,
-    /// Methods to compare: ecc, d2, lfd (the paper's comparison, Fig. 14) and ecc-paper.
-    #[arg(long, value_delimiter = ',', default_value = "ecc,d2,lfd")]
+    /// Methods to compare: hybrid (the default), ecc, d2, lfd (the paper's comparison,
+    /// Fig. 14) and ecc-paper.
+    #[arg(long, value_delimiter = ',', default_value = "hybrid,ecc,d2,lfd")]
     methods: Vec<EvalMethod>,
     /// Where report.json, report.md, pr.png, pr.svg and the distance matrices go.
     #[arg(long, default_value = "salient-report")]
@@ -94,7 +115,34 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         Command::Retrieval(args) => retrieval(args),
         Command::Robustness(args) => robustness(args),
         Command::Study(args) => study(args),
+        Command::Tune(args) => tune(args),
     }
+}
+
+fn tune(args: TuneArgs) -> anyhow::Result<()> {
+    let params = super::load_params(args.params.as_ref())?;
+    params.validate()?;
+    let collections = args
+        .dirs
+        .iter()
+        .map(|dir| LabelledCollection::open(dir))
+        .collect::<Result<Vec<_>, _>>()?;
+    let cache_dir = |c: &LabelledCollection| match (&args.cache_dir, c.root.file_name()) {
+        (Some(root), Some(name)) => root.join(name),
+        _ => c.root.join(CACHE_DIR),
+    };
+    let report = tune::run(
+        &collections,
+        &params,
+        |c| SignatureCache::new(cache_dir(c), &params),
+        &Limits::default(),
+        &Bar::default(),
+    )?;
+    report
+        .write(&args.out)
+        .with_context(|| format!("writing the report into {}", args.out.display()))?;
+    print!("{}", report.markdown());
+    Ok(())
 }
 
 fn study(args: StudyArgs) -> anyhow::Result<()> {

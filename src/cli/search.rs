@@ -1,4 +1,4 @@
-//! `salient search QUERY COLLECTION_DIR [-k 10] [--method ecc|d2|lfd] [--json]`.
+//! `salient search QUERY COLLECTION_DIR [-k 10] [--method hybrid|ecc|d2|lfd] [--json]`.
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -20,9 +20,10 @@ pub struct Args {
     /// How many results.
     #[arg(short, default_value_t = 10)]
     k: usize,
-    /// ecc (salient features, penalised EMD), d2 (global shape distribution baseline) or lfd
-    /// (Light Field Descriptor baseline).
-    #[arg(long, default_value = "ecc")]
+    /// hybrid (the default: ECC, D2 and LFD distances fused), ecc (salient features,
+    /// penalised EMD), d2 (global shape distribution baseline) or lfd (Light Field Descriptor
+    /// baseline).
+    #[arg(long, default_value = "hybrid")]
     method: Method,
     /// Print JSON.
     #[arg(long)]

@@ -1,7 +1,8 @@
 //! The evaluation protocol of SPEC §7 (paper §6): leave-one-out retrieval over a labelled
 //! collection with the Princeton Shape Benchmark measures ([`metrics`], [`retrieval`]), the
 //! salient points' robustness to resolution, noise and motion ([`robustness`]), and the
-//! parameter study that chose the defaults ([`study`]). [`report`] writes what they found as
+//! parameter study that chose the defaults ([`study`]), and the tuning of the hybrid's
+//! weights ([`tune`]). [`report`] writes what they found as
 //! JSON, Markdown and plots.
 
 pub mod metrics;
@@ -9,6 +10,7 @@ pub mod report;
 pub mod retrieval;
 pub mod robustness;
 pub mod study;
+pub mod tune;
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};

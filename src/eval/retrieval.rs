@@ -24,6 +24,8 @@ use crate::Result;
 /// extracted with and the distance that ranks them.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum EvalMethod {
+    /// The service's default: the weighted sum of the ECC, D2 and LFD distances (SPEC §9).
+    Hybrid,
     /// Salient features under the penalised EMD, with the given (default) parameters.
     Ecc,
     /// The global D2 baseline (SPEC §6), from the same signatures.
@@ -35,7 +37,8 @@ pub enum EvalMethod {
 }
 
 impl EvalMethod {
-    pub const ALL: [EvalMethod; 4] = [
+    pub const ALL: [EvalMethod; 5] = [
+        EvalMethod::Hybrid,
         EvalMethod::Ecc,
         EvalMethod::D2,
         EvalMethod::EccPaper,
@@ -44,6 +47,7 @@ impl EvalMethod {
 
     pub fn name(self) -> &'static str {
         match self {
+            EvalMethod::Hybrid => "hybrid",
             EvalMethod::Ecc => "ecc",
             EvalMethod::D2 => "d2",
             EvalMethod::EccPaper => "ecc-paper",
@@ -54,7 +58,7 @@ impl EvalMethod {
     /// The extraction parameters: `base` (the user's, by default SPEC's), or the paper's.
     pub fn params(self, base: &Params) -> Params {
         match self {
-            EvalMethod::Ecc | EvalMethod::D2 | EvalMethod::Lfd => base.clone(),
+            EvalMethod::Hybrid | EvalMethod::Ecc | EvalMethod::D2 | EvalMethod::Lfd => base.clone(),
             EvalMethod::EccPaper => Params::paper(),
         }
     }
@@ -62,6 +66,7 @@ impl EvalMethod {
     /// The distance that ranks.
     pub fn rank(self) -> Method {
         match self {
+            EvalMethod::Hybrid => Method::Hybrid,
             EvalMethod::Ecc | EvalMethod::EccPaper => Method::Ecc,
             EvalMethod::D2 => Method::D2,
             EvalMethod::Lfd => Method::Lfd,
@@ -81,7 +86,9 @@ impl FromStr for EvalMethod {
         Self::ALL
             .into_iter()
             .find(|m| m.name().eq_ignore_ascii_case(s))
-            .ok_or_else(|| format!("unknown method `{s}` (expected ecc, d2, ecc-paper or lfd)"))
+            .ok_or_else(|| {
+                format!("unknown method `{s}` (expected hybrid, ecc, d2, ecc-paper or lfd)")
+            })
     }
 }
 
@@ -390,7 +397,7 @@ pub fn run(
         let matrix_seconds = clock.elapsed().as_secs_f64();
         let features_per_class = match method.rank() {
             Method::Ecc => feature_counts(collection, signatures),
-            Method::D2 | Method::Lfd => BTreeMap::new(),
+            Method::Hybrid | Method::D2 | Method::Lfd => BTreeMap::new(),
         };
         results.push(MethodResult {
             method,

@@ -363,7 +363,7 @@ const BASELINE: &str = "baseline";
 const COMBINED: &str = "combined";
 
 /// Mean and standard error of the per-query average-precision differences `after − before`.
-fn paired_gain(before: &[Scores], after: &[Scores]) -> (f64, f64) {
+pub(super) fn paired_gain(before: &[Scores], after: &[Scores]) -> (f64, f64) {
     let differences: Vec<f64> = before
         .iter()
         .zip(after)

@@ -9,6 +9,7 @@ use glam::{DMat4, DVec3};
 use salient::api::config::Secret;
 use salient::api::Config;
 use salient::preview::NO_REGION;
+use salient::rank::Method;
 use salient::render::{region_colour, SURFACE};
 use salient::store::{InMemoryStore, Store};
 use serde_json::Value;
@@ -287,10 +288,25 @@ async fn explained_results_give_every_distance_and_the_emd_plan() {
     for hit in results {
         let explanation = &hit["explanation"];
         let distances = explanation["distances"].as_object().unwrap();
-        assert_eq!(distances.len(), 3, "ecc, d2 and lfd");
+        let methods: Vec<String> = Method::ALL.iter().map(|m| m.to_string()).collect();
+        assert_eq!(distances.keys().cloned().collect::<Vec<_>>(), {
+            let mut sorted = methods.clone();
+            sorted.sort();
+            sorted
+        });
+        assert_eq!(body["method"], "hybrid", "the default");
         assert_eq!(
-            distances["ecc"], hit["distance"],
+            distances["hybrid"], hit["distance"],
             "the ranking's own distance"
+        );
+        // The hybrid's terms add up to it.
+        let terms = explanation["contributions"].as_object().unwrap();
+        assert_eq!(terms.len(), methods.len() - 1, "{terms:?}");
+        let sum: f64 = terms.values().map(|t| t.as_f64().unwrap()).sum();
+        let hybrid = distances["hybrid"].as_f64().unwrap();
+        assert!(
+            (sum - hybrid).abs() <= 1e-9 * hybrid.max(1.0),
+            "{sum} vs {hybrid}"
         );
         let matches = explanation["matches"].as_array().unwrap();
         let mass: f64 = matches.iter().map(|m| m["mass"].as_f64().unwrap()).sum();

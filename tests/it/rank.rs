@@ -1,10 +1,13 @@
-//! Ranking with the centroid bound returns exactly the top k of a full scan (SPEC §5).
+//! Ranking with the centroid bound returns exactly the top k of a full scan (SPEC §5), and
+//! the hybrid distance is the weighted sum of its parts (SPEC §9).
 
 use crate::shapes;
 use crate::synthetic;
 
-use salient::rank::{Index, Method};
-use salient::Params;
+use salient::params::{HybridParams, Term};
+use salient::rank::{distance, fuse, Index, Method};
+use salient::similarity::{d2_distance, lower_bound, Summary};
+use salient::{Params, Signature};
 
 #[test]
 fn pruning_never_changes_the_top_k() {
@@ -63,16 +66,7 @@ fn ties_are_broken_by_id_and_methods_agree_on_self() {
 #[test]
 fn lfd_ranks_by_light_field_distance_and_skips_signatures_without_one() {
     let params = Params::default();
-    let meshes = [
-        ("cone", shapes::cone(0.5, 12, 24)),
-        ("tube", shapes::tube(0.25, 12, 24)),
-        ("star", shapes::star(3, &shapes::five_tips())),
-        ("bowl", shapes::bowl(3)),
-    ];
-    let signatures: Vec<_> = meshes
-        .iter()
-        .map(|(id, m)| (*id, salient::pipeline::compute(m, &params).unwrap()))
-        .collect();
+    let signatures = generated_signatures(&params);
     let mut index = Index::new(params.similarity.clone());
     for (id, s) in &signatures {
         index.insert(*id, s.clone());
@@ -117,4 +111,177 @@ fn lfd_ranks_by_light_field_distance_and_skips_signatures_without_one() {
     let mut bare = signatures[0].1.clone();
     bare.lfd = None;
     assert!(index.search(&bare, 3, Method::Lfd).hits.is_empty());
+}
+
+fn generated_signatures(params: &Params) -> Vec<(&'static str, Signature)> {
+    [
+        ("cone", shapes::cone(0.5, 12, 24)),
+        ("tube", shapes::tube(0.25, 12, 24)),
+        ("star", shapes::star(3, &shapes::five_tips())),
+        ("bowl", shapes::bowl(3)),
+    ]
+    .into_iter()
+    .map(|(id, m)| (id, salient::pipeline::compute(&m, params).unwrap()))
+    .collect()
+}
+
+/// `hybrid` is `Σ wᵢ dᵢ / sᵢ` over ECC, D2 and LFD; a part one side lacks is left out and the
+/// rest scaled to the full weight; and the fused bounds of the parts never exceed it.
+#[test]
+fn hybrid_is_the_weighted_sum_of_its_parts_and_its_bound_never_exceeds_it() {
+    let mut params = Params::default();
+    params.similarity.hybrid = HybridParams {
+        ecc: Term {
+            weight: 1.0,
+            scale: 0.2,
+        },
+        d2: Term {
+            weight: 0.5,
+            scale: 0.05,
+        },
+        lfd: Term {
+            weight: 2.0,
+            scale: 0.04,
+        },
+        penalty_power: 1.0,
+    };
+    let p = &params.similarity;
+    let signatures = generated_signatures(&params);
+    for (a, sa) in &signatures {
+        for (b, sb) in &signatures {
+            let (ecc, d2, lfd) = (
+                distance(Method::Ecc, sa, sb, p),
+                distance(Method::D2, sa, sb, p),
+                distance(Method::Lfd, sa, sb, p),
+            );
+            let by_hand = ecc / 0.2 + 0.5 * d2 / 0.05 + 2.0 * lfd / 0.04;
+            let hybrid = distance(Method::Hybrid, sa, sb, p);
+            assert!(
+                (hybrid - by_hand).abs() <= 1e-12 * by_hand.max(1.0),
+                "{a}–{b}"
+            );
+
+            let bound = fuse(
+                &p.hybrid,
+                [
+                    Some(lower_bound(&Summary::of(sa, p), &Summary::of(sb, p), p)),
+                    Some(d2_distance(sa, sb)),
+                    Some(
+                        sa.lfd
+                            .as_ref()
+                            .unwrap()
+                            .summary()
+                            .lower_bound(&sb.lfd.as_ref().unwrap().summary()),
+                    ),
+                ],
+            );
+            assert!(bound <= hybrid + 1e-12, "{a}–{b}: bound {bound} > {hybrid}");
+
+            let mut old = sb.clone();
+            old.lfd = None;
+            let without = (ecc / 0.2 + 0.5 * d2 / 0.05) * 3.5 / 1.5;
+            let partial = distance(Method::Hybrid, sa, &old, p);
+            assert!(
+                (partial - without).abs() <= 1e-12 * without.max(1.0),
+                "{a}–{b}"
+            );
+            assert!(Method::Hybrid.comparable(&old) && !Method::Hybrid.complete(&old));
+        }
+    }
+}
+
+/// The weights come from the parameters (a configuration file), and bad ones are refused.
+#[test]
+fn hybrid_weights_load_from_parameters() {
+    let d2_only: Params = serde_json::from_str(
+        r#"{"similarity": {"hybrid": {"ecc": {"weight": 0, "scale": 1},
+            "d2": {"weight": 1, "scale": 0.25}, "lfd": {"weight": 0, "scale": 1}}}}"#,
+    )
+    .unwrap();
+    d2_only.validate().unwrap();
+    let signatures = generated_signatures(&d2_only);
+    let mut index = Index::new(d2_only.similarity.clone());
+    for (id, s) in &signatures {
+        index.insert(*id, s.clone());
+    }
+    for (_, query) in &signatures {
+        let hybrid = index.search(query, 4, Method::Hybrid);
+        let d2 = index.search(query, 4, Method::D2);
+        let ids =
+            |r: &salient::rank::Ranking| r.hits.iter().map(|h| h.id.clone()).collect::<Vec<_>>();
+        assert_eq!(ids(&hybrid), ids(&d2));
+        for (h, d) in hybrid.hits.iter().zip(&d2.hits) {
+            assert!((h.distance - d.distance / 0.25).abs() < 1e-12);
+        }
+    }
+    for bad in [
+        r#"{"similarity": {"hybrid": {"lfd": {"weight": -1, "scale": 1}}}}"#,
+        r#"{"similarity": {"hybrid": {"ecc": {"weight": 1, "scale": 0}}}}"#,
+        r#"{"similarity": {"hybrid": {"ecc": {"weight": 0, "scale": 1},
+            "d2": {"weight": 0, "scale": 1}, "lfd": {"weight": 0, "scale": 1}}}}"#,
+        r#"{"similarity": {"penalty_power": -0.5}}"#,
+        r#"{"similarity": {"hybrid": {"penalty_power": 5}}}"#,
+    ] {
+        let params: Params = serde_json::from_str(bad).unwrap();
+        assert!(params.validate().is_err(), "{bad}");
+    }
+}
+
+/// The hybrid's bound-pruned ranking is the full scan's, whatever the weights, also over
+/// entries that lack a light field descriptor.
+#[test]
+fn hybrid_pruning_never_changes_the_top_k() {
+    let mut collection = synthetic::collection(1000, 20, 4);
+    synthetic::with_light_fields(&mut collection, 20, 5);
+    for (_, s) in collection.iter_mut().step_by(17) {
+        s.lfd = None;
+    }
+    let mut queries = synthetic::collection(5, 20, 6);
+    synthetic::with_light_fields(&mut queries, 20, 7);
+    let term = |weight, scale| Term { weight, scale };
+    let mut pruned = 0;
+    for hybrid in [
+        HybridParams::default(),
+        HybridParams {
+            ecc: term(1.0, 0.3),
+            d2: term(1.0, 0.1),
+            lfd: term(1.0, 0.04),
+            penalty_power: 0.5,
+        },
+        HybridParams {
+            ecc: term(0.0, 1.0),
+            d2: term(0.2, 0.1),
+            lfd: term(1.0, 0.04),
+            penalty_power: 1.0,
+        },
+        HybridParams {
+            ecc: term(1.0, 0.3),
+            d2: term(0.0, 1.0),
+            lfd: term(0.0, 1.0),
+            penalty_power: 0.0,
+        },
+    ] {
+        let mut params = Params::default().similarity;
+        params.hybrid = hybrid.clone();
+        let mut index = Index::new(params);
+        for (id, s) in &collection {
+            index.insert(id.clone(), s.clone());
+        }
+        assert_eq!(
+            index.partial(Method::Hybrid, &|_| true),
+            1000usize.div_ceil(17)
+        );
+        for (_, query) in &queries {
+            for k in [1, 10, 50] {
+                let fast = index.search(query, k, Method::Hybrid);
+                let full = index.search_exhaustive(query, k, Method::Hybrid);
+                assert_eq!(fast.hits, full.hits, "k = {k}, {hybrid:?}");
+                assert_eq!(fast.evaluated + fast.pruned, collection.len());
+                pruned += fast.pruned;
+            }
+        }
+    }
+    let total = 4 * queries.len() * 3 * collection.len();
+    eprintln!("pruned {pruned} of {total}");
+    assert!(pruned * 2 > total, "pruned only {pruned} of {total}");
 }

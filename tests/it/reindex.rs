@@ -70,6 +70,14 @@ async fn a_model_without_a_descriptor_is_left_out_then_re_extracted_online() {
     let ranked = app.get_json("/v1/models/cone/similar?method=ecc").await;
     assert_eq!(ranked["left_out"], 0);
     assert_eq!(ranked["results"].as_array().unwrap().len(), 2);
+    // The default ranks it on the parts it has, and says so.
+    let ranked = app.get_json("/v1/models/cone/similar").await;
+    assert_eq!(ranked["method"], "hybrid");
+    assert_eq!(
+        (ranked["left_out"].as_u64(), ranked["partial"].as_u64()),
+        (Some(0), Some(1))
+    );
+    assert_eq!(ranked["results"].as_array().unwrap().len(), 2, "{ranked}");
     expect_error(
         &app.get("/v1/models/star/similar?method=lfd").send().await,
         StatusCode::CONFLICT,
@@ -88,6 +96,7 @@ async fn a_model_without_a_descriptor_is_left_out_then_re_extracted_online() {
     let ranked = app.get_json("/v1/models/cone/similar?method=lfd").await;
     assert_eq!(ranked["left_out"], 0);
     assert_eq!(ranked["results"].as_array().unwrap().len(), 2);
+    assert_eq!(app.get_json("/v1/models/cone/similar").await["partial"], 0);
     let renewed = Signature::from_bytes(&store.signature("star").unwrap().unwrap()).unwrap();
     assert_eq!(renewed.staleness(&Params::default()), None);
     assert!(app.get_json("/v1/models/star/similar?method=lfd").await["results"][0].is_object());

@@ -85,3 +85,27 @@ pub fn collection(count: usize, classes: usize, seed: u64) -> Vec<(String, Signa
         })
         .collect()
 }
+
+/// Gives every signature a light field descriptor: one of `classes` random prototypes (by
+/// position, `i % classes`), each coefficient moved by up to ±6 quantisation steps.
+pub fn with_light_fields(collection: &mut [(String, Signature)], classes: usize, seed: u64) {
+    use salient::descriptor::lfd::{ImageFeatures, COEFFICIENTS, IMAGES};
+    use salient::descriptor::LightFieldDescriptor;
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let prototypes: Vec<Vec<u8>> = (0..classes)
+        .map(|_| (0..COEFFICIENTS * IMAGES).map(|_| rng.gen()).collect())
+        .collect();
+    for (i, (_, signature)) in collection.iter_mut().enumerate() {
+        let images = prototypes[i % classes]
+            .chunks(COEFFICIENTS)
+            .map(|c| {
+                let bytes = c
+                    .iter()
+                    .map(|&b| (b as i32 + rng.gen_range(-6..=6)).clamp(0, 255) as u8)
+                    .collect::<Vec<u8>>();
+                ImageFeatures::try_from(bytes).expect("a whole image")
+            })
+            .collect::<Vec<_>>();
+        signature.lfd = Some(LightFieldDescriptor::try_from(images).expect("every image"));
+    }
+}
