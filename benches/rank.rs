@@ -1,6 +1,7 @@
 //! Similarity and ranking (issue targets: top-10 of 100 000 signatures in under 100 ms on
 //! 2 cores). `cargo bench --bench rank`. Signatures are synthetic (tests/synthetic): class
-//! prototypes of smooth ECC curves and unimodal region D2 histograms, members perturbed.
+//! prototypes of smooth ECC curves and unimodal region D2 histograms, members perturbed, with
+//! light fields and geodesic histograms for the hybrid.
 
 #[path = "../tests/it/synthetic.rs"]
 mod synthetic;
@@ -42,7 +43,8 @@ fn emd_solve(c: &mut Criterion) {
 fn search_100k(c: &mut Criterion) {
     let params = Params::default().similarity;
     let clock = Instant::now();
-    let collection = synthetic::collection(100_000, 1000, 7);
+    let mut collection = synthetic::collection(100_000, 1000, 7);
+    synthetic::with_descriptors(&mut collection, 1000, 9);
     let mut index = Index::new(params);
     for (id, s) in collection {
         index.insert(id, s);
@@ -51,30 +53,37 @@ fn search_100k(c: &mut Criterion) {
         "built a 100 000-entry index in {:.2} s",
         clock.elapsed().as_secs_f64()
     );
-    let queries = synthetic::collection(20, 1000, 8);
-    let (mut evaluated, mut pruned) = (0, 0);
-    for (_, q) in &queries {
-        let r = index.search(q, 10, Method::Ecc);
-        evaluated += r.evaluated;
-        pruned += r.pruned;
+    let mut queries = synthetic::collection(20, 1000, 8);
+    synthetic::with_descriptors(&mut queries, 1000, 10);
+    for method in [Method::Ecc, Method::Hybrid] {
+        let (mut evaluated, mut pruned) = (0, 0);
+        for (_, q) in &queries {
+            let r = index.search(q, 10, method);
+            evaluated += r.evaluated;
+            pruned += r.pruned;
+        }
+        eprintln!(
+            "{method} top-10 over 100 000: {:.1} % pruned on average ({} exact distances per query)",
+            100.0 * pruned as f64 / (pruned + evaluated) as f64,
+            evaluated / queries.len()
+        );
     }
-    eprintln!(
-        "top-10 over 100 000: {:.1} % pruned on average ({} exact EMDs per query)",
-        100.0 * pruned as f64 / (pruned + evaluated) as f64,
-        evaluated / queries.len()
-    );
     let mut group = c.benchmark_group("search_100k");
     group.sample_size(10);
-    group.bench_function("ecc_top10", |b| {
-        let mut i = 0;
-        b.iter(|| {
-            i = (i + 1) % queries.len();
-            index.search(&queries[i].1, 10, Method::Ecc)
-        })
-    });
-    group.bench_function("d2_top10", |b| {
-        b.iter(|| index.search(&queries[0].1, 10, Method::D2))
-    });
+    for method in [Method::Hybrid, Method::Ecc] {
+        group.bench_function(format!("{method}_top10"), |b| {
+            let mut i = 0;
+            b.iter(|| {
+                i = (i + 1) % queries.len();
+                index.search(&queries[i].1, 10, method)
+            })
+        });
+    }
+    for method in [Method::D2, Method::Geodesic] {
+        group.bench_function(format!("{method}_top10"), |b| {
+            b.iter(|| index.search(&queries[0].1, 10, method))
+        });
+    }
     group.finish();
 }
 

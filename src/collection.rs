@@ -47,6 +47,7 @@ pub fn find_meshes(dir: &Path) -> Result<Vec<PathBuf>> {
 #[derive(Debug, Clone)]
 pub struct SignatureCache {
     dir: PathBuf,
+    params: Params,
     params_key: Vec<u8>,
 }
 
@@ -62,6 +63,7 @@ impl SignatureCache {
     pub fn new(dir: impl Into<PathBuf>, params: &Params) -> Self {
         Self {
             dir: dir.into(),
+            params: params.clone(),
             params_key: params.extraction_key(),
         }
     }
@@ -90,11 +92,13 @@ impl SignatureCache {
         Ok((self.put(&bytes, &signature)?, Source::Extracted))
     }
 
-    /// The stored signature of a mesh file with content `bytes`, if there is a readable one.
+    /// The stored signature of a mesh file with content `bytes`, if there is a readable one
+    /// that is not stale (one written before a descriptor existed is extracted again).
     pub fn get(&self, bytes: &[u8]) -> Option<Signature> {
         fs::read(self.entry(bytes))
             .ok()
             .and_then(|b| Signature::from_bytes(&b).ok())
+            .filter(|s| s.staleness(&self.params).is_none())
     }
 
     /// Stores `signature` as that of the mesh file with content `bytes` (made with this

@@ -13,7 +13,7 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
 
-use crate::descriptor::{d2_histogram, LightFieldDescriptor};
+use crate::descriptor::{d2_histogram, GeodesicDescriptor, LightFieldDescriptor};
 use crate::ecc::{self, EccField, EccStats};
 use crate::mesh::{self, Format, PrepareStats, PreparedMesh, RawMesh, Resources, Topology};
 use crate::params::{Limits, MeshParams, Params};
@@ -166,19 +166,25 @@ pub fn describe(extraction: &Extraction, params: &Params) -> Signature {
     let clock = Instant::now();
     let lfd = LightFieldDescriptor::compute(mesh);
     let lfd_seconds = clock.elapsed().as_secs_f64();
+    let clock = Instant::now();
+    let geodesic = GeodesicDescriptor::compute(mesh, &extraction.topology);
+    let geodesic_seconds = clock.elapsed().as_secs_f64();
 
     let mut stats = SignatureStats {
         extraction: extraction.stats.clone(),
         salient: salient_stats,
         salient_seconds,
         d2_seconds,
+        lfd_seconds,
+        geodesic_seconds,
     };
-    stats.extraction.total_seconds += salient_seconds + d2_seconds + lfd_seconds;
+    stats.extraction.total_seconds += salient_seconds + d2_seconds + lfd_seconds + geodesic_seconds;
     Signature {
         mesh_hash: hash,
         features,
         d2: global,
         lfd: Some(lfd),
+        geodesic: Some(geodesic),
         params: params.clone(),
         stats,
     }

@@ -35,6 +35,8 @@ pub enum Method {
     D2,
     /// The Light Field Descriptor baseline (SPEC §6).
     Lfd,
+    /// The geodesic distance distributions ([`crate::descriptor::GeodesicDescriptor`]).
+    Geodesic,
 }
 
 impl fmt::Display for Method {
@@ -44,6 +46,7 @@ impl fmt::Display for Method {
             Method::Ecc => "ecc",
             Method::D2 => "d2",
             Method::Lfd => "lfd",
+            Method::Geodesic => "geodesic",
         })
     }
 }
@@ -54,7 +57,9 @@ impl FromStr for Method {
         Method::ALL
             .into_iter()
             .find(|m| m.to_string().eq_ignore_ascii_case(s))
-            .ok_or_else(|| format!("unknown method `{s}` (expected hybrid, ecc, d2 or lfd)"))
+            .ok_or_else(|| {
+                format!("unknown method `{s}` (expected hybrid, ecc, d2, lfd or geodesic)")
+            })
     }
 }
 
@@ -66,21 +71,35 @@ pub fn distance(method: Method, p: &Signature, q: &Signature, params: &Similarit
         Method::Ecc => compare(p, q, params).sim,
         Method::D2 => d2_distance(p, q),
         Method::Lfd => lfd_distance(p, q).unwrap_or(f64::INFINITY),
+        Method::Geodesic => geodesic_distance(p, q).unwrap_or(f64::INFINITY),
     }
 }
 
-/// The hybrid's part distances (ECC, D2, LFD): `None` for a part one side lacks or the
-/// hybrid does not weigh.
-pub fn hybrid_parts(p: &Signature, q: &Signature, params: &SimilarityParams) -> [Option<f64>; 3] {
+/// The hybrid's parts, in the order of [`fuse`]'s arguments.
+pub const PARTS: [Method; 4] = [Method::Ecc, Method::D2, Method::Lfd, Method::Geodesic];
+
+/// The hybrid's part distances ([`PARTS`]): `None` for a part one side lacks or the hybrid
+/// does not weigh.
+pub fn hybrid_parts(p: &Signature, q: &Signature, params: &SimilarityParams) -> [Option<f64>; 4] {
     let h = &params.hybrid;
     let ecc =
         (h.ecc.weight > 0.0 && has_features(p, q)).then(|| compare(p, q, &params.hybrid_ecc()).sim);
-    [ecc, Some(d2_distance(p, q)), hybrid_lfd(h, p, q)]
+    [
+        ecc,
+        Some(d2_distance(p, q)),
+        hybrid_lfd(h, p, q),
+        geodesic_distance(p, q),
+    ]
 }
 
 /// Whether both signatures have salient features, without which the EMD is undefined.
 fn has_features(p: &Signature, q: &Signature) -> bool {
     !p.features.is_empty() && !q.features.is_empty()
+}
+
+/// The geodesic distance when both have the descriptor.
+fn geodesic_distance(p: &Signature, q: &Signature) -> Option<f64> {
+    Some(p.geodesic.as_ref()?.distance(q.geodesic.as_ref()?))
 }
 
 /// The LFD distance when both have the descriptor.
@@ -93,12 +112,12 @@ fn hybrid_lfd(h: &HybridParams, p: &Signature, q: &Signature) -> Option<f64> {
     (h.lfd.weight > 0.0).then(|| lfd_distance(p, q)).flatten()
 }
 
-/// The hybrid distance `Σ wᵢ · dᵢ / sᵢ` over the parts ECC, D2, LFD (SPEC §9), from each
+/// The hybrid distance `Σ wᵢ · dᵢ / sᵢ` over the [`PARTS`] (SPEC §9), from each
 /// part's distance, or from a lower bound of each: the sum grows with every part, so bounds
 /// of the parts make a bound of the sum. A part missing on either side (`None`) is left out
 /// and the others are scaled up to the full weight, so a model stored before a descriptor
 /// existed is still ranked, on what it has (responses count such models as `partial`).
-pub fn fuse(h: &HybridParams, parts: [Option<f64>; 3]) -> f64 {
+pub fn fuse(h: &HybridParams, parts: [Option<f64>; 4]) -> f64 {
     let terms = contributions(h, parts);
     if terms.iter().all(Option::is_none) {
         return f64::INFINITY;
@@ -106,16 +125,16 @@ pub fn fuse(h: &HybridParams, parts: [Option<f64>; 3]) -> f64 {
     terms.into_iter().flatten().sum()
 }
 
-/// Each part's term of [`fuse`]'s sum (ECC, D2, LFD), `None` for a part left out: what a
+/// Each part's term of [`fuse`]'s sum ([`PARTS`]), `None` for a part left out: what a
 /// result's explanation shows.
-pub fn contributions(h: &HybridParams, parts: [Option<f64>; 3]) -> [Option<f64>; 3] {
-    let terms = [h.ecc, h.d2, h.lfd];
+pub fn contributions(h: &HybridParams, parts: [Option<f64>; 4]) -> [Option<f64>; 4] {
+    let terms = h.terms();
     let weighed = |k: usize| terms[k].weight > 0.0;
-    let total: f64 = (0..3)
+    let total: f64 = (0..4)
         .filter(|&k| weighed(k))
         .map(|k| terms[k].weight)
         .sum();
-    let used: f64 = (0..3)
+    let used: f64 = (0..4)
         .filter(|&k| weighed(k) && parts[k].is_some())
         .map(|k| terms[k].weight)
         .sum();
@@ -126,17 +145,30 @@ pub fn contributions(h: &HybridParams, parts: [Option<f64>; 3]) -> [Option<f64>;
 }
 
 impl Method {
-    pub const ALL: [Method; 4] = [Method::Hybrid, Method::Ecc, Method::D2, Method::Lfd];
+    pub const ALL: [Method; 5] = [
+        Method::Hybrid,
+        Method::Ecc,
+        Method::D2,
+        Method::Lfd,
+        Method::Geodesic,
+    ];
 
     /// Whether `signature` holds what this method compares.
     pub fn comparable(self, signature: &Signature) -> bool {
-        self != Method::Lfd || signature.lfd.is_some()
+        match self {
+            Method::Lfd => signature.lfd.is_some(),
+            Method::Geodesic => signature.geodesic.is_some(),
+            Method::Hybrid | Method::Ecc | Method::D2 => true,
+        }
     }
 
     /// Whether `signature` holds every part this method weighs; a comparable signature
     /// that is not complete is ranked on part of the distance (see [`fuse`]).
     pub fn complete(self, signature: &Signature) -> bool {
-        self.comparable(signature) && (self != Method::Hybrid || signature.lfd.is_some())
+        match self {
+            Method::Hybrid => PARTS.iter().all(|m| m.comparable(signature)),
+            _ => self.comparable(signature),
+        }
     }
 }
 
@@ -254,8 +286,8 @@ impl Index {
             Method::Hybrid => self.search_hybrid(query, k, keep),
             Method::Ecc => self.search_ecc(query, k, keep),
             Method::Lfd => self.search_lfd(query, k, keep),
-            // A D2 distance costs less than any bound would.
-            Method::D2 => self.exhaustive(query, k, method, &self.params, keep),
+            // A histogram distance costs less than any bound would.
+            Method::D2 | Method::Geodesic => self.exhaustive(query, k, method, &self.params, keep),
         }
     }
 
@@ -291,7 +323,7 @@ impl Index {
         params: &SimilarityParams,
         keep: &(dyn Fn(&str) -> bool + Sync),
     ) -> Ranking {
-        if matches!(method, Method::D2 | Method::Lfd) || *params == self.params {
+        if matches!(method, Method::D2 | Method::Lfd | Method::Geodesic) || *params == self.params {
             return self.search_where(query, k, method, keep);
         }
         self.exhaustive(query, k, method, params, keep)
@@ -352,9 +384,9 @@ impl Index {
     }
 
     /// The hybrid's ranking: each entry's bound is the fused bounds of its parts (the ECC's
-    /// centroid/projection bound, the exact D2 distance, which costs less than a bound, and the
-    /// LFD's bound); an entry past the bound is rejected by the fused relaxed-EMD bound before
-    /// its EMD is solved.
+    /// centroid/projection bound, the exact D2 and geodesic distances, which cost less than a
+    /// bound, and the LFD's bound); an entry past the bound is rejected by the fused
+    /// relaxed-EMD bound before its EMD is solved.
     fn search_hybrid(
         &self,
         query: &Signature,
@@ -371,23 +403,24 @@ impl Index {
             _ => None,
         };
         let d2 = |e: &Entry| Some(d2_distance(query, &e.signature));
+        let geodesic = |e: &Entry| geodesic_distance(query, &e.signature);
         self.pruned(
             k,
             |e| keep(&e.id),
             |e| {
                 let ecc = (h.ecc.weight > 0.0 && has_features(query, &e.signature))
                     .then(|| lower_bound(&summary, &e.summary, params));
-                fuse(h, [ecc, d2(e), lfd_bound(e)])
+                fuse(h, [ecc, d2(e), lfd_bound(e), geodesic(e)])
             },
             |e, kth| {
                 let lfd = hybrid_lfd(h, query, &e.signature);
                 if h.ecc.weight == 0.0 || !has_features(query, &e.signature) {
-                    return Some(fuse(h, [None, d2(e), lfd]));
+                    return Some(fuse(h, [None, d2(e), lfd, geodesic(e)]));
                 }
                 let costs = CostMatrix::new(query, &e.signature, params);
-                let relaxed = fuse(h, [Some(costs.relaxed_bound(params)), d2(e), lfd]);
-                (relaxed <= kth)
-                    .then(|| fuse(h, [Some(compare_costs(&costs, params).sim), d2(e), lfd]))
+                let with_ecc = |ecc| fuse(h, [Some(ecc), d2(e), lfd, geodesic(e)]);
+                (with_ecc(costs.relaxed_bound(params)) <= kth)
+                    .then(|| with_ecc(compare_costs(&costs, params).sim))
             },
         )
     }

@@ -18,7 +18,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use crate::descriptor::LightFieldDescriptor;
+use crate::descriptor::{GeodesicDescriptor, LightFieldDescriptor};
 use crate::params::Params;
 use crate::pipeline::ExtractionStats;
 use crate::salient::SalientStats;
@@ -90,6 +90,8 @@ pub struct SignatureStats {
     pub salient: SalientStats,
     pub salient_seconds: f64,
     pub d2_seconds: f64,
+    pub lfd_seconds: f64,
+    pub geodesic_seconds: f64,
 }
 
 /// Everything stored about a model's shape.
@@ -104,6 +106,10 @@ pub struct Signature {
     /// (format 1), which are therefore stale.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub lfd: Option<LightFieldDescriptor>,
+    /// Geodesic distance distributions ([`GeodesicDescriptor`]); absent from signatures made
+    /// before it existed (release 0.2 and older), which are therefore stale.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub geodesic: Option<GeodesicDescriptor>,
     pub params: Params,
     pub stats: SignatureStats,
 }
@@ -129,7 +135,7 @@ impl Signature {
     pub fn staleness(&self, current: &Params) -> Option<Staleness> {
         if !self.params.same_extraction(current) {
             Some(Staleness::Parameters)
-        } else if self.lfd.is_none() {
+        } else if self.lfd.is_none() || self.geodesic.is_none() {
             Some(Staleness::MissingDescriptor)
         } else {
             None
@@ -147,6 +153,8 @@ mod tag {
     pub const PARAMS: u16 = 3;
     /// [`super::SignatureStats`], JSON.
     pub const STATS: u16 = 4;
+    /// [`super::StoredGeodesic`], postcard.
+    pub const GEODESIC: u16 = 5;
 }
 
 #[derive(Serialize, Deserialize)]
@@ -161,6 +169,13 @@ struct Shape {
     mesh_hash: [u8; 32],
     features: Vec<StoredFeature>,
     d2: Vec<u16>,
+}
+
+/// The geodesic histograms, quantised like the D2 bins.
+#[derive(Serialize, Deserialize)]
+struct StoredGeodesic {
+    distances: Vec<u16>,
+    eccentricity: Vec<u16>,
 }
 
 /// A feature as stored: the same layout in formats 1, 2 and 3.
@@ -243,6 +258,16 @@ impl Signature {
                 bytes: postcard::to_stdvec(lfd).expect(in_memory),
             });
         }
+        if let Some(g) = &self.geodesic {
+            let stored = StoredGeodesic {
+                distances: quantise(&g.distances),
+                eccentricity: quantise(&g.eccentricity),
+            };
+            sections.push(Section {
+                tag: tag::GEODESIC,
+                bytes: postcard::to_stdvec(&stored).expect(in_memory),
+            });
+        }
         sections.push(Section {
             tag: tag::PARAMS,
             bytes: serde_json::to_vec(&self.params).expect(in_memory),
@@ -292,6 +317,14 @@ impl Signature {
             .map(postcard::from_bytes)
             .transpose()
             .map_err(corrupt)?;
+        let geodesic = find(tag::GEODESIC)
+            .map(postcard::from_bytes::<StoredGeodesic>)
+            .transpose()
+            .map_err(corrupt)?
+            .map(|g| GeodesicDescriptor {
+                distances: dequantise(&g.distances),
+                eccentricity: dequantise(&g.eccentricity),
+            });
         let params =
             serde_json::from_slice(required(tag::PARAMS, "parameters")?).map_err(corrupt)?;
         let stats = serde_json::from_slice(required(tag::STATS, "statistics")?).map_err(corrupt)?;
@@ -300,6 +333,7 @@ impl Signature {
             features: shape.features.into_iter().map(Feature::from).collect(),
             d2: dequantise(&shape.d2),
             lfd,
+            geodesic,
             params,
             stats,
         })

@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Regenerates everything in docs/results/ from the shared data sets (SPEC §7).
 # Usage: docs/results/reproduce.sh [DATA_DIR]   (default: ../shared/data beside the repository)
-# Cost on a 2-core machine: about 25 min, most of it the parameter study's re-extractions.
+# Cost on a 2-core machine: about 45 min, most of it the parameter study's re-extractions.
 set -euo pipefail
 repo="$(cd "$(dirname "$0")/../.." && pwd)"
 data="$(cd "${1:-$repo/../shared/data}" && pwd)"
@@ -11,14 +11,22 @@ cargo build --release --manifest-path "$repo/Cargo.toml"
 salient="nice -n 19 $repo/target/release/salient"
 cd "$data" # relative collection paths in the reports
 for set in shrec07-watertight capod; do
-    # The paper's Fig. 14 comparison, then SPEC's ECC against the paper read literally.
-    $salient eval retrieval "$set" --methods ecc,d2,lfd --cache-dir "$cache/$set" --out "$out/$set"
+    # The default (hybrid) beside every single method, including the paper's Fig. 14
+    # comparison; then SPEC's ECC against the paper read literally.
+    $salient eval retrieval "$set" --methods hybrid,ecc,d2,lfd,geodesic --cache-dir "$cache/$set" \
+        --out "$out/$set"
     $salient eval retrieval "$set" --methods ecc,ecc-paper --cache-dir "$cache/$set" \
         --out "$out/ecc-paper-$set"
     rm "$out/ecc-paper-$set/distances-ecc.csv" # the same as in "$out/$set"
     gzip -9nf "$out/$set"/distances-*.csv "$out/ecc-paper-$set"/distances-*.csv
     $salient eval study "$set" --cache-dir "$cache/$set" --out "$out/study-$set"
 done
+# The hybrid's weights, on the tuning halves of both collections together (its params.json is
+# the default HybridParams), then retrieval on a copy of SHREC'07 with 1 % noise.
+$salient eval tune shrec07-watertight capod --cache-dir "$cache" --out "$out/tune"
+$salient eval retrieval shrec07-watertight --methods hybrid,ecc,d2,lfd,geodesic --perturb noise=0.01 \
+    --cache-dir "$cache/shrec07-watertight" --out "$out/noise-shrec07-watertight"
+gzip -9nf "$out/noise-shrec07-watertight"/distances-*.csv
 for mesh in shrec07-watertight/ant/81.off shrec07-watertight/teddy/171.off \
     shrec07-watertight/hand/181.off capod/dog/m100.obj; do
     name="$(basename "$(dirname "$mesh")")-$(basename "${mesh%.*}")"

@@ -13,7 +13,7 @@ use super::upload::{AppPath, AppQuery, MeshUpload, ModelPath};
 use super::AppState;
 use crate::model::ModelId;
 use crate::params::SimilarityParams;
-use crate::rank::{contributions, distance, hybrid_parts, Method, Ranking};
+use crate::rank::{contributions, distance, hybrid_parts, Method, Ranking, PARTS};
 use crate::signature::Signature;
 use crate::similarity::explain;
 
@@ -24,9 +24,10 @@ pub struct SearchQuery {
     /// Number of results (default 10; at most the server's `max_k`, 1000 by default).
     #[param(minimum = 1)]
     pub k: Option<usize>,
-    /// `hybrid` (default: the ECC, D2 and LFD distances, weighted), `ecc` (salient features,
-    /// penalised EMD), `d2` (global shape distribution) or `lfd` (Light Field Descriptor).
-    #[param(value_type = Option<String>, pattern = "^(hybrid|ecc|d2|lfd)$")]
+    /// `hybrid` (default: the other methods' distances, weighted), `ecc` (salient features,
+    /// penalised EMD), `d2` (global shape distribution), `lfd` (Light Field Descriptor) or
+    /// `geodesic` (geodesic distance distributions).
+    #[param(value_type = Option<String>, pattern = "^(hybrid|ecc|d2|lfd|geodesic)$")]
     pub method: Option<Method>,
     /// Weight `W` of the ECC distance against the region D2 distance, in [0, 1]. A value other
     /// than the configured one ranks without the bound-based pruning, so it is slower.
@@ -48,8 +49,7 @@ pub struct SearchHit {
     pub tags: Vec<String>,
     pub class: Option<String>,
     /// Lower is more similar: the weighted sum of the parts' distances, each divided by its
-    /// scale (`hybrid`), `SIM` of SPEC §5 (`ecc`), the D2 distance in [0, 1] or the LFD
-    /// distance.
+    /// scale (`hybrid`), `SIM` of SPEC §5 (`ecc`), or the D2, LFD or geodesic distance.
     pub distance: f64,
     /// With `explain=true`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -59,11 +59,12 @@ pub struct SearchHit {
 /// Why a model ranked where it did.
 #[derive(Debug, Serialize, Deserialize, utoipa::ToSchema)]
 pub struct Explanation {
-    /// The distance by each method that can compare the two (`hybrid`, `ecc`, `d2`, `lfd`).
+    /// The distance by each method that can compare the two (`hybrid`, `ecc`, `d2`, `lfd`,
+    /// `geodesic`).
     pub distances: std::collections::BTreeMap<String, f64>,
-    /// Each part's term of the hybrid distance (`ecc`, `d2`, `lfd`: weight × distance /
-    /// scale); they sum to `distances.hybrid`. A part left out (a descriptor one side lacks)
-    /// is missing.
+    /// Each weighed part's term of the hybrid distance (`ecc`, `d2`, `lfd`, `geodesic`:
+    /// weight × distance / scale); they sum to `distances.hybrid`. A part of weight 0, or one
+    /// left out (a descriptor one side lacks), is missing.
     pub contributions: std::collections::BTreeMap<String, f64>,
     /// The optimal EMD plan between the salient features (paper Eq. 9): each flow from a
     /// query feature to a result feature.
@@ -153,7 +154,7 @@ fn explanation(query: &Signature, result: &Signature, params: &SimilarityParams)
         })
         .collect();
     let parts = hybrid_parts(query, result, params);
-    let contributions = [Method::Ecc, Method::D2, Method::Lfd]
+    let contributions = PARTS
         .into_iter()
         .zip(contributions(&params.hybrid, parts))
         .filter_map(|(m, c)| Some((m.to_string(), c?)))

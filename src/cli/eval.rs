@@ -8,6 +8,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 
 use salient::collection::{SignatureCache, CACHE_DIR};
 use salient::eval::retrieval::{self, EvalMethod};
+use salient::eval::robustness::Perturbation;
 use salient::eval::{robustness, study, tune, LabelledCollection, Progress};
 use salient::mesh::load_path;
 use salient::Limits;
@@ -87,6 +88,10 @@ struct RetrievalArgs {
     /// Where report.json, report.md, pr.png, pr.svg and the distance matrices go.
     #[arg(long, default_value = "salient-report")]
     out: PathBuf,
+    /// Evaluate a disguised copy of the collection: `noise=0.01` displaces every vertex by
+    /// Gaussian noise of RMS length 1 % of the bounding-box diagonal (seeded by model).
+    #[arg(long)]
+    perturb: Option<Perturbation>,
     #[command(flatten)]
     common: Common,
 }
@@ -181,13 +186,17 @@ fn retrieval(args: RetrievalArgs) -> anyhow::Result<()> {
     let params = super::load_params(args.common.params.as_ref())?;
     params.validate()?;
     let collection = LabelledCollection::open(&args.dir)?;
-    let cache_dir = args.common.cache_dir(&args.dir);
+    let mut cache_dir = args.common.cache_dir(&args.dir);
+    if let Some(change) = &args.perturb {
+        cache_dir = cache_dir.join(change.name());
+    }
     let (report, matrices) = retrieval::run(
         &collection,
         &args.methods,
         &params,
         |p| SignatureCache::new(&cache_dir, p),
         &Limits::default(),
+        args.perturb.as_ref(),
         &Bar::default(),
     )?;
     report

@@ -13,9 +13,12 @@ use serde::{Serialize, Serializer};
 
 use super::metrics::{Scores, RECALL_LEVELS};
 use super::report::{precision_recall_plot, score, write, write_json, Table};
+use super::robustness::Perturbation;
 use super::{LabelledCollection, Progress};
-use crate::collection::{SignatureCache, Source};
+use crate::collection::{read, SignatureCache, Source};
+use crate::mesh::load_path;
 use crate::params::{Limits, Params, SimilarityParams};
+use crate::pipeline::compute;
 use crate::rank::{distance, Method};
 use crate::signature::Signature;
 use crate::Result;
@@ -34,15 +37,18 @@ pub enum EvalMethod {
     EccPaper,
     /// The Light Field Descriptor baseline (SPEC §6), from the same signatures.
     Lfd,
+    /// The geodesic distance distributions, from the same signatures.
+    Geodesic,
 }
 
 impl EvalMethod {
-    pub const ALL: [EvalMethod; 5] = [
+    pub const ALL: [EvalMethod; 6] = [
         EvalMethod::Hybrid,
         EvalMethod::Ecc,
         EvalMethod::D2,
         EvalMethod::EccPaper,
         EvalMethod::Lfd,
+        EvalMethod::Geodesic,
     ];
 
     pub fn name(self) -> &'static str {
@@ -52,14 +58,15 @@ impl EvalMethod {
             EvalMethod::D2 => "d2",
             EvalMethod::EccPaper => "ecc-paper",
             EvalMethod::Lfd => "lfd",
+            EvalMethod::Geodesic => "geodesic",
         }
     }
 
     /// The extraction parameters: `base` (the user's, by default SPEC's), or the paper's.
     pub fn params(self, base: &Params) -> Params {
         match self {
-            EvalMethod::Hybrid | EvalMethod::Ecc | EvalMethod::D2 | EvalMethod::Lfd => base.clone(),
             EvalMethod::EccPaper => Params::paper(),
+            _ => base.clone(),
         }
     }
 
@@ -70,6 +77,7 @@ impl EvalMethod {
             EvalMethod::Ecc | EvalMethod::EccPaper => Method::Ecc,
             EvalMethod::D2 => Method::D2,
             EvalMethod::Lfd => Method::Lfd,
+            EvalMethod::Geodesic => Method::Geodesic,
         }
     }
 }
@@ -87,7 +95,9 @@ impl FromStr for EvalMethod {
             .into_iter()
             .find(|m| m.name().eq_ignore_ascii_case(s))
             .ok_or_else(|| {
-                format!("unknown method `{s}` (expected hybrid, ecc, d2, ecc-paper or lfd)")
+                format!(
+                    "unknown method `{s}` (expected hybrid, ecc, d2, ecc-paper, lfd or geodesic)"
+                )
             })
     }
 }
@@ -243,12 +253,14 @@ pub struct ExtractionSummary {
 }
 
 /// The signature of every model, in collection order, from `cache` or extracted with
-/// `params`.
+/// `params`; of a perturbed copy of each model with `perturbation` (`cache` must then be one
+/// for that perturbation alone: it is keyed by the original file).
 pub fn signatures(
     collection: &LabelledCollection,
     cache: &SignatureCache,
     params: &Params,
     limits: &Limits,
+    perturbation: Option<&Perturbation>,
     progress: &dyn Progress,
 ) -> Result<(Vec<Signature>, ExtractionSummary)> {
     let clock = Instant::now();
@@ -256,7 +268,21 @@ pub fn signatures(
     progress.start("signatures", collection.models.len());
     let mut signatures = Vec::with_capacity(collection.models.len());
     for model in &collection.models {
-        let (signature, source) = cache.signature(&model.path, params, limits)?;
+        let (signature, source) = match perturbation {
+            None => cache.signature(&model.path, params, limits)?,
+            Some(change) => {
+                let bytes = read(&model.path)?;
+                match cache.get(&bytes) {
+                    Some(signature) => (signature, Source::Cached),
+                    None => {
+                        let raw = load_path(&model.path, limits)?;
+                        let copy = change.apply(&raw, params, &model.id)?;
+                        let signature = cache.put(&bytes, &compute(&copy, params)?)?;
+                        (signature, Source::Extracted)
+                    }
+                }
+            }
+        };
         match source {
             Source::Cached => summary.cached += 1,
             Source::Extracted => summary.extracted += 1,
@@ -345,6 +371,9 @@ pub struct RetrievalReport {
     pub models: usize,
     pub classes: usize,
     pub class_sizes: BTreeMap<String, usize>,
+    /// The change every model went through first (`--perturb`), if any.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub perturbation: Option<String>,
     /// Keyed by method name, in the order they were asked for.
     #[serde(serialize_with = "by_name")]
     pub methods: Vec<MethodResult>,
@@ -354,15 +383,17 @@ fn by_name<S: Serializer>(methods: &[MethodResult], serializer: S) -> Result<S::
     serializer.collect_map(methods.iter().map(|m| (m.method.name(), m)))
 }
 
-/// Evaluates `methods` on `collection`: signatures from the cache `cache_for` gives for each
-/// parameter set (methods that share parameters share signatures), then each method's
-/// distance matrix and scores. Returns the report and the matrices, in method order.
+/// Evaluates `methods` on `collection` (or on its copy changed by `perturbation`):
+/// signatures from the cache `cache_for` gives for each parameter set (methods that share
+/// parameters share signatures), then each method's distance matrix and scores. Returns the
+/// report and the matrices, in method order.
 pub fn run(
     collection: &LabelledCollection,
     methods: &[EvalMethod],
     base: &Params,
     cache_for: impl Fn(&Params) -> SignatureCache,
     limits: &Limits,
+    perturbation: Option<&Perturbation>,
     progress: &dyn Progress,
 ) -> Result<(RetrievalReport, Vec<DistanceMatrix>)> {
     let ids: Vec<String> = collection.models.iter().map(|m| m.id.clone()).collect();
@@ -378,7 +409,7 @@ pub fn run(
             None => {
                 let cache = cache_for(&params);
                 let (signatures, summary) =
-                    signatures(collection, &cache, &params, limits, progress)?;
+                    signatures(collection, &cache, &params, limits, perturbation, progress)?;
                 extracted.push((params.clone(), signatures, summary));
                 extracted.len() - 1
             }
@@ -397,7 +428,7 @@ pub fn run(
         let matrix_seconds = clock.elapsed().as_secs_f64();
         let features_per_class = match method.rank() {
             Method::Ecc => feature_counts(collection, signatures),
-            Method::Hybrid | Method::D2 | Method::Lfd => BTreeMap::new(),
+            Method::Hybrid | Method::D2 | Method::Lfd | Method::Geodesic => BTreeMap::new(),
         };
         results.push(MethodResult {
             method,
@@ -416,6 +447,7 @@ pub fn run(
             models: ids.len(),
             classes: class_sizes.len(),
             class_sizes,
+            perturbation: perturbation.map(|p| p.name()),
             methods: results,
         },
         matrices,
@@ -443,6 +475,13 @@ impl RetrievalReport {
              normalised DCG, mean average precision; higher is better.\n\n",
             self.models, self.classes
         );
+        if let Some(change) = &self.perturbation {
+            text += &format!(
+                "Every model was first changed (`--perturb`): **{change}**, Gaussian noise \
+                 whose RMS length is that fraction of the bounding-box diagonal, seeded by \
+                 model.\n\n"
+            );
+        }
         let mut overall = Table::new(["method", "NN", "FT", "ST", "E", "DCG", "mAP"]);
         for m in &self.methods {
             let measures = m.evaluation.scores.measures();

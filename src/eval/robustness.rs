@@ -149,6 +149,47 @@ pub fn run(name: &str, raw: &RawMesh, params: &Params, seed: u64) -> Result<Robu
     })
 }
 
+/// A change applied to every model of a collection before extraction, for retrieval on a
+/// disguised copy of it (`salient eval retrieval --perturb noise=0.01`).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Perturbation {
+    /// Gaussian noise, RMS length as a fraction of the bounding-box diagonal (see [`noisy`]).
+    pub noise: f64,
+}
+
+impl Perturbation {
+    /// `mesh` welded and displaced, with noise drawn from a seed of `name` (a model's id), so
+    /// the copy is the same on every run.
+    pub fn apply(&self, mesh: &RawMesh, params: &Params, name: &str) -> Result<RawMesh> {
+        use sha2::{Digest, Sha256};
+        let digest = Sha256::digest(name.as_bytes());
+        let seed = u64::from_le_bytes(digest[..8].try_into().expect("a SHA-256 has 32 bytes"));
+        let base = prepare(mesh, &params.mesh)?;
+        Ok(noisy(
+            &base,
+            self.noise,
+            &mut ChaCha8Rng::seed_from_u64(seed),
+        ))
+    }
+
+    /// A name for file and folder names: `noise-0.01`.
+    pub fn name(&self) -> String {
+        format!("noise-{}", self.noise)
+    }
+}
+
+impl std::str::FromStr for Perturbation {
+    type Err = String;
+    fn from_str(s: &str) -> std::result::Result<Self, String> {
+        let bad = || format!("expected noise=LEVEL with LEVEL in (0, 0.1], not `{s}`");
+        let level = s.strip_prefix("noise=").ok_or_else(bad)?;
+        match level.parse::<f64>() {
+            Ok(noise) if noise > 0.0 && noise <= 0.1 => Ok(Self { noise }),
+            _ => Err(bad()),
+        }
+    }
+}
+
 /// Every vertex displaced by an isotropic Gaussian whose root-mean-square length is `level` ×
 /// the bounding-box diagonal (each coordinate's deviation is that over √3). Noise is added
 /// after welding, so seams stay closed.

@@ -87,7 +87,7 @@ impl Change {
 }
 
 /// The alternatives tried: `W` ∈ {0, 0.25, 0.75, 1}, penalty off, `K` ∈ {3, 8}, `flat_max` ∈
-/// {0.25, 1}, `D_g` ∈ {0.2, 0.4}, and the paper's height, candidate and region rules
+/// {0.25, 1}, `D_g` ∈ {0.2, 0.3, 0.4}, and the paper's height, candidate and region rules
 /// (`Params::paper`), skipping any that `base` already has.
 pub fn grid(base: &Params) -> Vec<Change> {
     let changes = [0.0, 0.25, 0.75, 1.0]
@@ -99,7 +99,7 @@ pub fn grid(base: &Params) -> Vec<Change> {
             Change::Clusters(8),
         ])
         .chain([0.25, 1.0].map(Change::FlatMax))
-        .chain([0.2, 0.4].map(Change::LocalSize))
+        .chain([0.2, 0.3, 0.4].map(Change::LocalSize))
         .chain([
             Change::Height(HeightRule::Paper),
             Change::Candidates(CandidateRule::Norm),

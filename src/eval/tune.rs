@@ -27,18 +27,15 @@ use super::retrieval::{evaluate, signatures, DistanceMatrix, Evaluation};
 use super::study::{halves, paired_gain};
 use super::{LabelledCollection, Progress};
 use crate::collection::SignatureCache;
-use crate::params::{HybridParams, Limits, Params, SimilarityParams, Term};
-use crate::rank::{fuse, Method};
+use crate::params::{HybridParams, Limits, Params, SimilarityParams};
+use crate::rank::{fuse, Method, PARTS};
 use crate::Result;
 
-/// Step of the weight grid on the simplex `w_ecc + w_d2 + w_lfd = 1`.
+/// Step of the weight grid on the simplex `Σ wᵢ = 1`.
 pub const WEIGHT_STEP: f64 = 0.05;
 
 /// Powers of the count penalty tried for the ECC part (1 is the paper's Eq. 13, 0 none).
 pub const POWERS: [f64; 5] = [0.0, 0.25, 0.5, 0.75, 1.0];
-
-/// Parts of the hybrid, in [`fuse`]'s order.
-const PARTS: [&str; 3] = ["ecc", "d2", "lfd"];
 
 /// One collection's part distances and halves.
 struct Parts {
@@ -49,8 +46,8 @@ struct Parts {
     emd: DistanceMatrix,
     /// `max(m, n) / min(m, n)` of the feature counts, row-major.
     ratio: Vec<f64>,
-    d2: DistanceMatrix,
-    lfd: DistanceMatrix,
+    /// The other parts' distances, in [`PARTS`] order after the ECC.
+    others: Vec<DistanceMatrix>,
     tune: Vec<usize>,
     held_out: Vec<usize>,
 }
@@ -63,7 +60,7 @@ impl Parts {
         limits: &Limits,
         progress: &dyn Progress,
     ) -> Result<Self> {
-        let (signatures, _) = signatures(collection, cache, params, limits, progress)?;
+        let (signatures, _) = signatures(collection, cache, params, limits, None, progress)?;
         let ids: Vec<String> = collection.models.iter().map(|m| m.id.clone()).collect();
         let unpenalised = SimilarityParams {
             penalty: false,
@@ -88,8 +85,7 @@ impl Parts {
             classes: collection.models.iter().map(|m| m.class.clone()).collect(),
             emd: matrix(Method::Ecc),
             ratio,
-            d2: matrix(Method::D2),
-            lfd: matrix(Method::Lfd),
+            others: PARTS[1..].iter().map(|&m| matrix(m)).collect(),
             ids,
             tune,
             held_out,
@@ -97,14 +93,13 @@ impl Parts {
     }
 
     /// The part distances of `(i, j)`, the ECC's with the penalty to `power`.
-    fn parts(&self, i: usize, j: usize, power: f64) -> [Option<f64>; 3] {
+    fn parts(&self, i: usize, j: usize, power: f64) -> [Option<f64>; 4] {
         let n = self.ids.len();
         let finite = |d: f64| d.is_finite().then_some(d);
-        [
-            finite(self.emd.get(i, j) * self.ratio[i * n + j].powf(power)),
-            finite(self.d2.get(i, j)),
-            finite(self.lfd.get(i, j)),
-        ]
+        std::array::from_fn(|k| match k {
+            0 => finite(self.emd.get(i, j) * self.ratio[i * n + j].powf(power)),
+            _ => finite(self.others[k - 1].get(i, j)),
+        })
     }
 
     /// The hybrid's distance matrix under `hybrid`.
@@ -144,25 +139,28 @@ fn median(mut values: Vec<f64>) -> f64 {
 }
 
 /// Every setting of the grid, scales as given.
-fn grid(scales: &BTreeMap<String, [f64; 3]>) -> Vec<HybridParams> {
+fn grid(scales: &BTreeMap<String, [f64; 4]>) -> Vec<HybridParams> {
     let steps = (1.0 / WEIGHT_STEP).round() as usize;
+    let mut weights: Vec<[usize; 4]> = Vec::new();
+    for a in 0..=steps {
+        for b in 0..=steps - a {
+            for c in 0..=steps - a - b {
+                weights.push([a, b, c, steps - a - b - c]);
+            }
+        }
+    }
     let mut settings = Vec::new();
     for power in POWERS {
         let s = scales[&power.to_string()];
-        for a in 0..=steps {
-            for b in 0..=steps - a {
-                let w = [a, b, steps - a - b].map(|x| x as f64 / steps as f64);
-                let term = |k: usize| Term {
-                    weight: w[k],
-                    scale: s[k],
-                };
-                settings.push(HybridParams {
-                    ecc: term(0),
-                    d2: term(1),
-                    lfd: term(2),
-                    penalty_power: power,
-                });
+        for w in &weights {
+            let mut hybrid = HybridParams {
+                penalty_power: power,
+                ..HybridParams::default()
+            };
+            for (k, term) in hybrid.terms_mut().into_iter().enumerate() {
+                (term.weight, term.scale) = (w[k] as f64 / steps as f64, s[k]);
             }
+            settings.push(hybrid);
         }
     }
     settings
@@ -204,8 +202,8 @@ pub struct CollectionResult {
 /// Everything `salient eval tune` reports.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct TuneReport {
-    /// Per penalty power, the scales of the ECC, D2 and LFD parts.
-    pub scales: BTreeMap<String, [f64; 3]>,
+    /// Per penalty power, the scales of the parts ([`PARTS`]).
+    pub scales: BTreeMap<String, [f64; 4]>,
     pub settings_tried: usize,
     /// The chosen setting: best mean tuning-half mAP over the collections.
     pub chosen: HybridParams,
@@ -227,7 +225,7 @@ pub fn run(
         .iter()
         .map(|c| Parts::compute(c, params, &cache_for(c), limits, progress))
         .collect::<Result<_>>()?;
-    let scales: BTreeMap<String, [f64; 3]> = POWERS
+    let scales: BTreeMap<String, [f64; 4]> = POWERS
         .iter()
         .map(|&power| {
             let scale = |k: usize| {
@@ -238,7 +236,7 @@ pub fn run(
                         .collect(),
                 )
             };
-            (power.to_string(), [scale(0), scale(1), scale(2)])
+            (power.to_string(), std::array::from_fn(scale))
         })
         .collect();
     let settings = grid(&scales);
@@ -268,11 +266,11 @@ pub fn run(
     order.sort_by(|&a, &b| mean_tune(&scored[b]).total_cmp(&mean_tune(&scored[a])));
     let chosen = settings[order[0]].clone();
 
-    let single = |name: &str| {
-        let weight = |k: usize| if PARTS[k] == name { 1.0 } else { 0.0 };
+    let single = |method: Method| {
         let mut hybrid = chosen.clone();
-        (hybrid.ecc.weight, hybrid.d2.weight, hybrid.lfd.weight) =
-            (weight(0), weight(1), weight(2));
+        for (term, part) in hybrid.terms_mut().into_iter().zip(PARTS) {
+            term.weight = if part == method { 1.0 } else { 0.0 };
+        }
         hybrid.penalty_power = params.similarity.penalty_power;
         hybrid
     };
@@ -302,12 +300,12 @@ pub fn run(
             let (hybrid, hybrid_queries) = method("hybrid", &chosen);
             let singles: Vec<_> = PARTS
                 .iter()
-                .map(|name| method(name, &single(name)))
+                .map(|&m| method(&m.to_string(), &single(m)))
                 .collect();
             let (best, best_queries) = singles
                 .iter()
                 .max_by(|a, b| a.0.held_out.map.total_cmp(&b.0.held_out.map))
-                .expect("three parts");
+                .expect("four parts");
             let (gain, se) = paired_gain(best_queries, &hybrid_queries);
             CollectionResult {
                 collection: p.name.clone(),
@@ -341,10 +339,12 @@ pub fn run(
 }
 
 fn setting(h: &HybridParams) -> String {
-    format!(
-        "ECC {:.2}, D2 {:.2}, LFD {:.2}; penalty power {}",
-        h.ecc.weight, h.d2.weight, h.lfd.weight, h.penalty_power
-    )
+    let weights: Vec<String> = PARTS
+        .iter()
+        .zip(h.terms())
+        .map(|(m, t)| format!("{m} {:.2}", t.weight))
+        .collect();
+    format!("{}; penalty power {}", weights.join(", "), h.penalty_power)
 }
 
 impl TuneReport {
@@ -356,7 +356,7 @@ impl TuneReport {
     pub fn markdown(&self) -> String {
         let mut text = format!(
             "# Tuning the hybrid\n\nThe `hybrid` distance is `Σ wᵢ · dᵢ / sᵢ` over the ECC \
-             (penalised EMD), D2 and LFD distances (SPEC §9). Scales `sᵢ` are each part's \
+             (penalised EMD), D2, LFD and geodesic distances (SPEC §9). Scales `sᵢ` are each part's \
              median distance over the pairs of the pooled tuning halves; weights (a simplex \
              grid in steps of {WEIGHT_STEP}) and the ECC part's penalty power ({:?}) are \
              chosen by the mean tuning-half mAP over {} collection(s): {} settings. Each \
@@ -369,14 +369,12 @@ impl TuneReport {
             score(self.chosen_tune_map),
             serde_json::to_string(&self.params()).expect("serialisable"),
         );
-        let mut scales = Table::new(["penalty power", "ECC scale", "D2 scale", "LFD scale"]);
+        let mut scales = Table::new(
+            std::iter::once("penalty power".to_string())
+                .chain(PARTS.iter().map(|m| format!("{m} scale"))),
+        );
         for (power, s) in &self.scales {
-            scales.row([
-                power.clone(),
-                format!("{:.4}", s[0]),
-                format!("{:.4}", s[1]),
-                format!("{:.4}", s[2]),
-            ]);
+            scales.row(std::iter::once(power.clone()).chain(s.iter().map(|x| format!("{x:.4}"))));
         }
         text += &scales.markdown();
         text += "\n## The ten best settings on the tuning halves\n\n";

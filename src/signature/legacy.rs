@@ -32,6 +32,7 @@ pub(super) fn decode(format: u16, body: &[u8]) -> Result<Signature> {
         features: stored.features.into_iter().map(Feature::from).collect(),
         d2: dequantise(&stored.d2),
         lfd,
+        geodesic: None,
         params: upgrade(format, &stored.params)?,
         stats: upgrade(format, &stored.stats)?,
     })

@@ -58,7 +58,10 @@ fn extract_json_per_vertex_reports_input_coordinates() {
         assert_eq!(alpha.len(), 10);
         // A sphere is convex everywhere: every cone angle is positive.
         assert!(alpha.iter().all(|a| a.as_f64().unwrap() > 0.0));
-        assert_eq!(size.as_f64(), Some(0.3));
+        assert_eq!(
+            size.as_f64(),
+            Some(salient::Params::default().ecc.local_size)
+        );
     }
     let stats = &json["stats"]["extraction"];
     assert_eq!(stats["mesh"]["input_vertices"], 642);
@@ -69,7 +72,7 @@ fn extract_json_per_vertex_reports_input_coordinates() {
     assert_eq!(stats["ecc"]["wave1_invalid"], 0);
     // 642 Dijkstra runs take measurable time: a zero would mean the stage was not timed.
     assert!(stats["ecc"]["geodesic_seconds"].as_f64().unwrap() > 0.0);
-    assert_eq!(json["params"]["ecc"]["local_size"], 0.3);
+    assert_eq!(json["params"]["ecc"]["local_size"], 0.4);
 
     // Without --per-vertex: parameters and statistics only.
     let out = salient(&["extract", path.to_str().unwrap(), "--json"]);

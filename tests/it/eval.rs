@@ -64,7 +64,7 @@ fn retrieval_report_end_to_end() {
         .arg(&collection)
         .arg("--out")
         .arg(&out)
-        .args(["--methods", "ecc,d2,lfd,ecc-paper"])
+        .args(["--methods", "hybrid,ecc,d2,lfd,geodesic,ecc-paper"])
         .output()
         .unwrap();
     assert!(
@@ -77,7 +77,8 @@ fn retrieval_report_end_to_end() {
         serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
     assert_eq!(json["models"], 9);
     assert_eq!(json["classes"], 3);
-    for method in ["ecc", "d2", "lfd", "ecc-paper"] {
+    assert!(json.get("perturbation").is_none());
+    for method in ["hybrid", "ecc", "d2", "lfd", "geodesic", "ecc-paper"] {
         let m = &json["methods"][method];
         for measure in ["NN", "FT", "ST", "E", "DCG", "mAP"] {
             let x = m[measure]
@@ -117,6 +118,91 @@ fn retrieval_report_end_to_end() {
     let csv = std::fs::read_to_string(out.join("distances-ecc.csv")).unwrap();
     assert_eq!(csv.lines().count(), 10);
     assert!(csv.starts_with("id,cone/c-0.obj,"));
+
+    // A noisy copy: its own signatures, cached apart, and other distances.
+    let noisy = dir.path().join("noisy");
+    let run = Command::new(env!("CARGO_BIN_EXE_salient"))
+        .args(["eval", "retrieval"])
+        .arg(&collection)
+        .arg("--out")
+        .arg(&noisy)
+        .args(["--methods", "ecc", "--perturb", "noise=0.01"])
+        .output()
+        .unwrap();
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    let json: Value =
+        serde_json::from_str(&std::fs::read_to_string(noisy.join("report.json")).unwrap()).unwrap();
+    assert_eq!(json["perturbation"], "noise-0.01");
+    let copies = std::fs::read_dir(collection.join(".salient-cache/noise-0.01")).unwrap();
+    assert_eq!(copies.count(), 9);
+    assert_ne!(
+        std::fs::read_to_string(noisy.join("distances-ecc.csv")).unwrap(),
+        csv
+    );
+    let bad = Command::new(env!("CARGO_BIN_EXE_salient"))
+        .args(["eval", "retrieval"])
+        .arg(&collection)
+        .args(["--perturb", "noise=2"])
+        .output()
+        .unwrap();
+    assert!(!bad.status.success());
+    assert!(String::from_utf8_lossy(&bad.stderr).contains("noise=LEVEL"));
+}
+
+/// `salient eval tune` searches the hybrid's grid on the tuning halves: the setting it
+/// chooses is at least as good there as each single method (all are in the grid), and its
+/// parameter file loads.
+#[test]
+fn tune_chooses_hybrid_weights_on_the_tuning_halves() {
+    let dir = tempfile::tempdir().unwrap();
+    let (collection, out) = (dir.path().join("shapes"), dir.path().join("tune"));
+    write_collection(&collection);
+    let run = Command::new(env!("CARGO_BIN_EXE_salient"))
+        .args(["eval", "tune"])
+        .arg(&collection)
+        .arg("--out")
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    let report: Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("tune.json")).unwrap()).unwrap();
+    assert_eq!(report["settings_tried"], 5 * 1771);
+    let tuned = report["chosen_tune_map"].as_f64().unwrap();
+    let shapes = &report["collections"][0];
+    assert_eq!(shapes["tune_models"], 6);
+    let methods = shapes["methods"].as_array().unwrap();
+    let names: Vec<&str> = methods
+        .iter()
+        .map(|m| m["method"].as_str().unwrap())
+        .collect();
+    assert_eq!(names, ["hybrid", "ecc", "d2", "lfd", "geodesic"]);
+    assert_eq!(methods[0]["tune"]["mAP"].as_f64().unwrap(), tuned);
+    for m in &methods[1..] {
+        assert!(m["tune"]["mAP"].as_f64().unwrap() <= tuned, "{m}");
+    }
+    let params: Params =
+        serde_json::from_str(&std::fs::read_to_string(out.join("params.json")).unwrap()).unwrap();
+    params.validate().unwrap();
+    let weights: f64 = params
+        .similarity
+        .hybrid
+        .terms()
+        .iter()
+        .map(|t| t.weight)
+        .sum();
+    assert!((weights - 1.0).abs() < 1e-9);
+    assert!(std::fs::read_to_string(out.join("tune.md"))
+        .unwrap()
+        .contains("Overfit gap"));
 }
 
 #[test]

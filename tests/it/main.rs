@@ -22,6 +22,7 @@ mod ecc;
 mod emd;
 mod eval;
 mod eval_metrics;
+mod geodesic;
 mod golden;
 mod ingest;
 mod lfd;

@@ -125,7 +125,7 @@ fn generated_signatures(params: &Params) -> Vec<(&'static str, Signature)> {
     .collect()
 }
 
-/// `hybrid` is `Σ wᵢ dᵢ / sᵢ` over ECC, D2 and LFD; a part one side lacks is left out and the
+/// `hybrid` is `Σ wᵢ dᵢ / sᵢ` over ECC, D2, LFD and geodesic; a part one side lacks is left out and the
 /// rest scaled to the full weight; and the fused bounds of the parts never exceed it.
 #[test]
 fn hybrid_is_the_weighted_sum_of_its_parts_and_its_bound_never_exceeds_it() {
@@ -143,18 +143,23 @@ fn hybrid_is_the_weighted_sum_of_its_parts_and_its_bound_never_exceeds_it() {
             weight: 2.0,
             scale: 0.04,
         },
+        geodesic: Term {
+            weight: 0.5,
+            scale: 0.1,
+        },
         penalty_power: 1.0,
     };
     let p = &params.similarity;
     let signatures = generated_signatures(&params);
     for (a, sa) in &signatures {
         for (b, sb) in &signatures {
-            let (ecc, d2, lfd) = (
+            let (ecc, d2, lfd, geodesic) = (
                 distance(Method::Ecc, sa, sb, p),
                 distance(Method::D2, sa, sb, p),
                 distance(Method::Lfd, sa, sb, p),
+                distance(Method::Geodesic, sa, sb, p),
             );
-            let by_hand = ecc / 0.2 + 0.5 * d2 / 0.05 + 2.0 * lfd / 0.04;
+            let by_hand = ecc / 0.2 + 0.5 * d2 / 0.05 + 2.0 * lfd / 0.04 + 0.5 * geodesic / 0.1;
             let hybrid = distance(Method::Hybrid, sa, sb, p);
             assert!(
                 (hybrid - by_hand).abs() <= 1e-12 * by_hand.max(1.0),
@@ -173,13 +178,14 @@ fn hybrid_is_the_weighted_sum_of_its_parts_and_its_bound_never_exceeds_it() {
                             .summary()
                             .lower_bound(&sb.lfd.as_ref().unwrap().summary()),
                     ),
+                    Some(geodesic),
                 ],
             );
             assert!(bound <= hybrid + 1e-12, "{a}–{b}: bound {bound} > {hybrid}");
 
             let mut old = sb.clone();
             old.lfd = None;
-            let without = (ecc / 0.2 + 0.5 * d2 / 0.05) * 3.5 / 1.5;
+            let without = (ecc / 0.2 + 0.5 * d2 / 0.05 + 0.5 * geodesic / 0.1) * 4.0 / 2.0;
             let partial = distance(Method::Hybrid, sa, &old, p);
             assert!(
                 (partial - without).abs() <= 1e-12 * without.max(1.0),
@@ -195,7 +201,8 @@ fn hybrid_is_the_weighted_sum_of_its_parts_and_its_bound_never_exceeds_it() {
 fn hybrid_weights_load_from_parameters() {
     let d2_only: Params = serde_json::from_str(
         r#"{"similarity": {"hybrid": {"ecc": {"weight": 0, "scale": 1},
-            "d2": {"weight": 1, "scale": 0.25}, "lfd": {"weight": 0, "scale": 1}}}}"#,
+            "d2": {"weight": 1, "scale": 0.25}, "lfd": {"weight": 0, "scale": 1},
+            "geodesic": {"weight": 0, "scale": 1}}}}"#,
     )
     .unwrap();
     d2_only.validate().unwrap();
@@ -218,7 +225,8 @@ fn hybrid_weights_load_from_parameters() {
         r#"{"similarity": {"hybrid": {"lfd": {"weight": -1, "scale": 1}}}}"#,
         r#"{"similarity": {"hybrid": {"ecc": {"weight": 1, "scale": 0}}}}"#,
         r#"{"similarity": {"hybrid": {"ecc": {"weight": 0, "scale": 1},
-            "d2": {"weight": 0, "scale": 1}, "lfd": {"weight": 0, "scale": 1}}}}"#,
+            "d2": {"weight": 0, "scale": 1}, "lfd": {"weight": 0, "scale": 1},
+            "geodesic": {"weight": 0, "scale": 1}}}}"#,
         r#"{"similarity": {"penalty_power": -0.5}}"#,
         r#"{"similarity": {"hybrid": {"penalty_power": 5}}}"#,
     ] {
@@ -232,12 +240,12 @@ fn hybrid_weights_load_from_parameters() {
 #[test]
 fn hybrid_pruning_never_changes_the_top_k() {
     let mut collection = synthetic::collection(1000, 20, 4);
-    synthetic::with_light_fields(&mut collection, 20, 5);
+    synthetic::with_descriptors(&mut collection, 20, 5);
     for (_, s) in collection.iter_mut().step_by(17) {
         s.lfd = None;
     }
     let mut queries = synthetic::collection(5, 20, 6);
-    synthetic::with_light_fields(&mut queries, 20, 7);
+    synthetic::with_descriptors(&mut queries, 20, 7);
     let term = |weight, scale| Term { weight, scale };
     let mut pruned = 0;
     for hybrid in [
@@ -246,18 +254,21 @@ fn hybrid_pruning_never_changes_the_top_k() {
             ecc: term(1.0, 0.3),
             d2: term(1.0, 0.1),
             lfd: term(1.0, 0.04),
+            geodesic: term(0.5, 0.05),
             penalty_power: 0.5,
         },
         HybridParams {
             ecc: term(0.0, 1.0),
             d2: term(0.2, 0.1),
             lfd: term(1.0, 0.04),
+            geodesic: term(0.0, 1.0),
             penalty_power: 1.0,
         },
         HybridParams {
             ecc: term(1.0, 0.3),
             d2: term(0.0, 1.0),
             lfd: term(0.0, 1.0),
+            geodesic: term(1.0, 0.05),
             penalty_power: 0.0,
         },
     ] {
@@ -284,4 +295,13 @@ fn hybrid_pruning_never_changes_the_top_k() {
     let total = 4 * queries.len() * 3 * collection.len();
     eprintln!("pruned {pruned} of {total}");
     assert!(pruned * 2 > total, "pruned only {pruned} of {total}");
+}
+
+/// The default weights are those `salient eval tune` chose (`docs/results/tune/`).
+#[test]
+fn hybrid_defaults_are_the_tuned_setting() {
+    let path =
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("docs/results/tune/params.json");
+    let tuned: Params = serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap();
+    assert_eq!(tuned.similarity.hybrid, HybridParams::default());
 }

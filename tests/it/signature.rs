@@ -116,6 +116,17 @@ fn binary_form_round_trips_compactly_and_refuses_garbage() {
     assert_eq!(bytes.len() - without_lfd.len(), 3 + 1 + 100 * 46);
     let back = Signature::from_bytes(&bytes).unwrap();
     assert_eq!(back.lfd, s.lfd);
+    let (g, h) = (back.geodesic.clone().unwrap(), s.geodesic.clone().unwrap());
+    for (a, b) in [
+        (&g.distances, &h.distances),
+        (&g.eccentricity, &h.eccentricity),
+    ] {
+        assert_eq!(a.len(), salient::descriptor::geodesic::BINS);
+        assert!(a
+            .iter()
+            .zip(b)
+            .all(|(x, y)| (x - y).abs() <= 0.5 / 65535.0 + 1e-7));
+    }
     assert_eq!(back.mesh_hash, s.mesh_hash);
     assert_eq!(back.params, s.params);
     assert_eq!(back.features.len(), s.features.len());
@@ -214,12 +225,23 @@ fn only_extraction_parameters_make_a_signature_stale() {
     ranking.similarity.penalty = false;
     assert_eq!(s.staleness(&ranking), None);
     let mut extraction = current.clone();
-    extraction.ecc.local_size = 0.4;
+    extraction.ecc.local_size = 0.3;
     assert_eq!(s.staleness(&extraction), Some(Staleness::Parameters));
     let mut older = s.clone();
     older.params.version -= 1;
     assert_eq!(older.staleness(&current), Some(Staleness::Parameters));
-    let without = Signature { lfd: None, ..s };
+    let without = Signature {
+        lfd: None,
+        ..s.clone()
+    };
+    assert_eq!(
+        without.staleness(&current),
+        Some(Staleness::MissingDescriptor)
+    );
+    let without = Signature {
+        geodesic: None,
+        ..s
+    };
     assert_eq!(
         without.staleness(&current),
         Some(Staleness::MissingDescriptor)

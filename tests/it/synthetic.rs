@@ -78,6 +78,7 @@ pub fn collection(count: usize, classes: usize, seed: u64) -> Vec<(String, Signa
                 features,
                 d2: histogram(&mut rng, 64),
                 lfd: None,
+                geodesic: None,
                 params: Params::default(),
                 stats: Default::default(),
             };
@@ -86,11 +87,12 @@ pub fn collection(count: usize, classes: usize, seed: u64) -> Vec<(String, Signa
         .collect()
 }
 
-/// Gives every signature a light field descriptor: one of `classes` random prototypes (by
-/// position, `i % classes`), each coefficient moved by up to ±6 quantisation steps.
-pub fn with_light_fields(collection: &mut [(String, Signature)], classes: usize, seed: u64) {
+/// Gives every signature the global descriptors: a light field, one of `classes` random
+/// prototypes (by position, `i % classes`) with each coefficient moved by up to ±6
+/// quantisation steps, and geodesic histograms like the region D2's.
+pub fn with_descriptors(collection: &mut [(String, Signature)], classes: usize, seed: u64) {
     use salient::descriptor::lfd::{ImageFeatures, COEFFICIENTS, IMAGES};
-    use salient::descriptor::LightFieldDescriptor;
+    use salient::descriptor::{geodesic, GeodesicDescriptor, LightFieldDescriptor};
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let prototypes: Vec<Vec<u8>> = (0..classes)
         .map(|_| (0..COEFFICIENTS * IMAGES).map(|_| rng.gen()).collect())
@@ -107,5 +109,9 @@ pub fn with_light_fields(collection: &mut [(String, Signature)], classes: usize,
             })
             .collect::<Vec<_>>();
         signature.lfd = Some(LightFieldDescriptor::try_from(images).expect("every image"));
+        signature.geodesic = Some(GeodesicDescriptor {
+            distances: histogram(&mut rng, geodesic::BINS),
+            eccentricity: histogram(&mut rng, geodesic::BINS),
+        });
     }
 }

@@ -12,7 +12,7 @@ const KEY_STORAGE = 'salient.apiKey';
 const PAGE_SIZE = 24;
 const K = 24;
 const MESH_EXTENSIONS = ['obj', 'gltf', 'glb', 'off', 'ply', 'stl'];
-const METHOD_NAMES = { hybrid: 'hybrid', ecc: 'ECC', d2: 'D2', lfd: 'LFD' };
+const METHOD_NAMES = { hybrid: 'hybrid', ecc: 'ECC', d2: 'D2', lfd: 'LFD', geodesic: 'geodesic' };
 
 const state = {
   query: null, // the last query: { kind: 'upload', files, label } or { kind: 'model', id, label }
