@@ -43,8 +43,10 @@ fn emd_solve(c: &mut Criterion) {
 fn search_100k(c: &mut Criterion) {
     let params = Params::default().similarity;
     let clock = Instant::now();
-    let mut collection = synthetic::collection(100_000, 1000, 7);
+    // The last 20 members are held out as queries: new models of the stored classes.
+    let mut collection = synthetic::collection(100_020, 1000, 7);
     synthetic::with_descriptors(&mut collection, 1000, 9);
+    let queries = collection.split_off(100_000);
     let mut index = Index::new(params);
     for (id, s) in collection {
         index.insert(id, s);
@@ -53,8 +55,6 @@ fn search_100k(c: &mut Criterion) {
         "built a 100 000-entry index in {:.2} s",
         clock.elapsed().as_secs_f64()
     );
-    let mut queries = synthetic::collection(20, 1000, 8);
-    synthetic::with_descriptors(&mut queries, 1000, 10);
     for method in [Method::Ecc, Method::Hybrid] {
         let (mut evaluated, mut pruned) = (0, 0);
         for (_, q) in &queries {
