@@ -262,7 +262,7 @@ pub fn run(
     progress.finish();
     let mean_tune = |row: &[(f64, f64)]| row.iter().map(|s| s.0).sum::<f64>() / row.len() as f64;
     let mut order: Vec<usize> = (0..settings.len()).collect();
-    // Best first; among equals the earlier setting (lower power, more ECC weight).
+    // Best first; among equals the earlier in grid order (lower power first).
     order.sort_by(|&a, &b| mean_tune(&scored[b]).total_cmp(&mean_tune(&scored[a])));
     let chosen = settings[order[0]].clone();
 
