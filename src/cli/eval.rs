@@ -143,11 +143,7 @@ fn tune(args: TuneArgs) -> anyhow::Result<()> {
         &Limits::default(),
         &Bar::default(),
     )?;
-    report
-        .write(&args.out)
-        .with_context(|| format!("writing the report into {}", args.out.display()))?;
-    print!("{}", report.markdown());
-    Ok(())
+    written(&args.out, report.write(&args.out), report.markdown())
 }
 
 fn study(args: StudyArgs) -> anyhow::Result<()> {
@@ -162,11 +158,7 @@ fn study(args: StudyArgs) -> anyhow::Result<()> {
         &Limits::default(),
         &Bar::default(),
     )?;
-    report
-        .write(&args.out)
-        .with_context(|| format!("writing the report into {}", args.out.display()))?;
-    print!("{}", report.markdown());
-    Ok(())
+    written(&args.out, report.write(&args.out), report.markdown())
 }
 
 fn robustness(args: RobustnessArgs) -> anyhow::Result<()> {
@@ -175,11 +167,7 @@ fn robustness(args: RobustnessArgs) -> anyhow::Result<()> {
         .with_context(|| args.mesh.display().to_string())?;
     let report = robustness::run(&args.mesh.display().to_string(), &raw, &params, args.seed)
         .with_context(|| args.mesh.display().to_string())?;
-    report
-        .write(&args.out)
-        .with_context(|| format!("writing the report into {}", args.out.display()))?;
-    print!("{}", report.markdown());
-    Ok(())
+    written(&args.out, report.write(&args.out), report.markdown())
 }
 
 fn retrieval(args: RetrievalArgs) -> anyhow::Result<()> {
@@ -249,4 +237,12 @@ impl Progress for Bar {
             bar.finish_with_message("done");
         }
     }
+}
+
+/// The end of a report command: `result` of writing the report's files into `out`; then
+/// the report on stdout.
+fn written(out: &Path, result: salient::Result<()>, markdown: String) -> anyhow::Result<()> {
+    result.with_context(|| format!("writing the report into {}", out.display()))?;
+    print!("{markdown}");
+    Ok(())
 }

@@ -54,17 +54,11 @@ fn write_collection(dir: &Path) {
     }
 }
 
-#[test]
-fn retrieval_report_end_to_end() {
-    let dir = tempfile::tempdir().unwrap();
-    let (collection, out) = (dir.path().join("shapes"), dir.path().join("report"));
-    write_collection(&collection);
+/// Runs `salient eval ARGS…`, which must succeed, and reads `REPORT` (a JSON file) back.
+fn eval(args: &[&std::ffi::OsStr], report: &Path) -> Value {
     let run = Command::new(env!("CARGO_BIN_EXE_salient"))
-        .args(["eval", "retrieval"])
-        .arg(&collection)
-        .arg("--out")
-        .arg(&out)
-        .args(["--methods", "hybrid,ecc,d2,lfd,geodesic,ecc-paper"])
+        .arg("eval")
+        .args(args)
         .output()
         .unwrap();
     assert!(
@@ -72,9 +66,25 @@ fn retrieval_report_end_to_end() {
         "{}",
         String::from_utf8_lossy(&run.stderr)
     );
+    serde_json::from_str(&std::fs::read_to_string(report).unwrap()).unwrap()
+}
 
-    let json: Value =
-        serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
+#[test]
+fn retrieval_report_end_to_end() {
+    let dir = tempfile::tempdir().unwrap();
+    let (collection, out) = (dir.path().join("shapes"), dir.path().join("report"));
+    write_collection(&collection);
+    let json = eval(
+        &[
+            "retrieval".as_ref(),
+            collection.as_ref(),
+            "--out".as_ref(),
+            out.as_ref(),
+            "--methods".as_ref(),
+            "hybrid,ecc,d2,lfd,geodesic,ecc-paper".as_ref(),
+        ],
+        &out.join("report.json"),
+    );
     assert_eq!(json["models"], 9);
     assert_eq!(json["classes"], 3);
     assert!(json.get("perturbation").is_none());
@@ -121,21 +131,19 @@ fn retrieval_report_end_to_end() {
 
     // A noisy copy: its own signatures, cached apart, and other distances.
     let noisy = dir.path().join("noisy");
-    let run = Command::new(env!("CARGO_BIN_EXE_salient"))
-        .args(["eval", "retrieval"])
-        .arg(&collection)
-        .arg("--out")
-        .arg(&noisy)
-        .args(["--methods", "ecc", "--perturb", "noise=0.01"])
-        .output()
-        .unwrap();
-    assert!(
-        run.status.success(),
-        "{}",
-        String::from_utf8_lossy(&run.stderr)
+    let json = eval(
+        &[
+            "retrieval".as_ref(),
+            collection.as_ref(),
+            "--out".as_ref(),
+            noisy.as_ref(),
+            "--methods".as_ref(),
+            "ecc".as_ref(),
+            "--perturb".as_ref(),
+            "noise=0.01".as_ref(),
+        ],
+        &noisy.join("report.json"),
     );
-    let json: Value =
-        serde_json::from_str(&std::fs::read_to_string(noisy.join("report.json")).unwrap()).unwrap();
     assert_eq!(json["perturbation"], "noise-0.01");
     let copies = std::fs::read_dir(collection.join(".salient-cache/noise-0.01")).unwrap();
     assert_eq!(copies.count(), 9);
@@ -161,20 +169,15 @@ fn tune_chooses_hybrid_weights_on_the_tuning_halves() {
     let dir = tempfile::tempdir().unwrap();
     let (collection, out) = (dir.path().join("shapes"), dir.path().join("tune"));
     write_collection(&collection);
-    let run = Command::new(env!("CARGO_BIN_EXE_salient"))
-        .args(["eval", "tune"])
-        .arg(&collection)
-        .arg("--out")
-        .arg(&out)
-        .output()
-        .unwrap();
-    assert!(
-        run.status.success(),
-        "{}",
-        String::from_utf8_lossy(&run.stderr)
+    let report = eval(
+        &[
+            "tune".as_ref(),
+            collection.as_ref(),
+            "--out".as_ref(),
+            out.as_ref(),
+        ],
+        &out.join("tune.json"),
     );
-    let report: Value =
-        serde_json::from_str(&std::fs::read_to_string(out.join("tune.json")).unwrap()).unwrap();
     assert_eq!(report["settings_tried"], 5 * 1771);
     let tuned = report["chosen_tune_map"].as_f64().unwrap();
     let shapes = &report["collections"][0];
@@ -235,20 +238,15 @@ fn study_grid_halves_and_report() {
     // Three per class: the first and third tune, the second is held out.
     assert_eq!((tune, held_out), (vec![0, 2, 3, 5], vec![1, 4]));
 
-    let run = Command::new(env!("CARGO_BIN_EXE_salient"))
-        .args(["eval", "study"])
-        .arg(&collection)
-        .arg("--out")
-        .arg(&out)
-        .output()
-        .unwrap();
-    assert!(
-        run.status.success(),
-        "{}",
-        String::from_utf8_lossy(&run.stderr)
+    let json = eval(
+        &[
+            "study".as_ref(),
+            collection.as_ref(),
+            "--out".as_ref(),
+            out.as_ref(),
+        ],
+        &out.join("study.json"),
     );
-    let json: Value =
-        serde_json::from_str(&std::fs::read_to_string(out.join("study.json")).unwrap()).unwrap();
     // The baseline, each change, and maybe the recommended changes combined.
     let rows = json["results"].as_array().unwrap().len();
     assert!(rows == grid.len() + 1 || rows == grid.len() + 2, "{rows}");
