@@ -16,6 +16,7 @@ use std::sync::Arc;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
+use crate::descriptor::lfd::LfdSummary;
 use crate::descriptor::LightFieldDescriptor;
 use crate::params::{HybridParams, SimilarityParams};
 use crate::signature::Signature;
@@ -206,10 +207,15 @@ struct Entry {
     id: Arc<str>,
     signature: Arc<Signature>,
     summary: Summary,
+    /// The LFD bound's side of this model, kept: the bound runs for every entry of a ranking.
+    lfd: Option<LfdSummary>,
 }
 
 /// Entries whose exact distances are computed together (in parallel) between bound checks.
 const BATCH: usize = 64;
+
+/// Entries put in bound order at a time by the pruned ranking (a multiple of [`BATCH`]).
+const SORTED: usize = 16 * BATCH;
 
 impl Index {
     pub fn new(params: SimilarityParams) -> Self {
@@ -226,6 +232,7 @@ impl Index {
         let summary = Summary::of(&signature, &self.params);
         let entry = Arc::new(Entry {
             id: id.clone(),
+            lfd: signature.lfd.as_ref().map(LightFieldDescriptor::summary),
             signature,
             summary,
         });
@@ -343,20 +350,23 @@ impl Index {
         params: &SimilarityParams,
         keep: &(dyn Fn(&str) -> bool + Sync),
     ) -> Ranking {
-        let mut hits: Vec<Hit> = self
+        let mut scored: Vec<(f64, usize)> = self
             .entries
             .par_iter()
-            .filter(|e| keep(&e.id) && method.comparable(&e.signature))
-            .map(|e| Hit {
-                id: e.id.to_string(),
-                distance: distance(method, query, &e.signature, params),
-            })
+            .enumerate()
+            .filter(|(_, e)| keep(&e.id) && method.comparable(&e.signature))
+            .map(|(i, e)| (distance(method, query, &e.signature, params), i))
             .collect();
-        let evaluated = hits.len();
-        sort_hits(&mut hits);
-        hits.truncate(k);
+        let evaluated = scored.len();
+        let top = self.smallest(&mut scored, k);
         Ranking {
-            hits,
+            hits: top
+                .iter()
+                .map(|&(distance, i)| Hit {
+                    id: self.entries[i].id.to_string(),
+                    distance,
+                })
+                .collect(),
             evaluated,
             pruned: 0,
         }
@@ -398,11 +408,12 @@ impl Index {
         let params = &self.params.hybrid_ecc();
         let summary = Summary::of(query, params);
         let lfd_summary = query.lfd.as_ref().map(|d| d.summary());
-        let lfd_bound = |e: &Entry| match (&lfd_summary, &e.signature.lfd) {
-            (Some(s), Some(d)) if h.lfd.weight > 0.0 => Some(s.lower_bound(&d.summary())),
+        let lfd_bound = |e: &Entry| match (&lfd_summary, &e.lfd) {
+            (Some(q), Some(s)) if h.lfd.weight > 0.0 => Some(q.lower_bound(s)),
             _ => None,
         };
-        let d2 = |e: &Entry| Some(d2_distance(query, &e.signature));
+        // Left out (as `fuse` would leave it) when it weighs nothing, as in the defaults.
+        let d2 = |e: &Entry| (h.d2.weight > 0.0).then(|| d2_distance(query, &e.signature));
         let geodesic = |e: &Entry| geodesic_distance(query, &e.signature);
         let with_ecc = |e: &Entry| h.ecc.weight > 0.0 && has_features(query, &e.signature);
         self.pruned(
@@ -451,12 +462,10 @@ impl Index {
         fn descriptor(e: &Entry) -> &LightFieldDescriptor {
             e.signature.lfd.as_ref().expect("kept entries have one")
         }
-        // The summaries are recomputed rather than kept: 900 bytes an entry would cost more
-        // memory than the 4 500 additions cost time (the bound is ~3 % of a distance).
         self.pruned(
             k,
-            |e| keep(&e.id) && e.signature.lfd.is_some(),
-            |e| summary.lower_bound(&descriptor(e).summary()),
+            |e| keep(&e.id) && e.lfd.is_some(),
+            |e| summary.lower_bound(e.lfd.as_ref().expect("kept entries have one")),
             |e, _| Some(query.distance(descriptor(e))),
         )
     }
@@ -486,14 +495,17 @@ impl Index {
             .filter(|(_, e)| keep(e))
             .map(|(i, e)| (bound(e), i))
             .collect();
-        order.par_sort_unstable_by(|a, b| {
-            a.0.total_cmp(&b.0)
-                .then_with(|| self.entries[a.1].id.cmp(&self.entries[b.1].id))
-        });
 
         let mut best: Vec<Hit> = Vec::with_capacity(k + BATCH);
-        let mut evaluated = 0;
-        for batch in order.chunks(BATCH) {
+        let (mut evaluated, mut visited, mut sorted) = (0, 0, 0);
+        while visited < order.len() {
+            // Only the visited prefix needs sorting, and the visit rarely goes far: sort a
+            // chunk at a time, each the smallest of what is left.
+            if visited == sorted {
+                sorted += self.smallest(&mut order[sorted..], SORTED).len();
+            }
+            let batch = &order[visited..(visited + BATCH).min(sorted)];
+            visited += batch.len();
             // An entry whose bound equals the k-th distance may still tie with it and win by
             // id, so only a strictly larger bound is rejected.
             let kth = if best.len() >= k {
@@ -532,6 +544,21 @@ impl Index {
             evaluated,
             pruned: order.len() - evaluated,
         }
+    }
+
+    /// Moves the `k` smallest of `scored` (by score, ties by id) to its front, sorted, and
+    /// returns them: a selection then a sort of `k`, not a sort of all.
+    fn smallest<'a>(&self, scored: &'a mut [(f64, usize)], k: usize) -> &'a [(f64, usize)] {
+        let order = |a: &(f64, usize), b: &(f64, usize)| {
+            a.0.total_cmp(&b.0)
+                .then_with(|| self.entries[a.1].id.cmp(&self.entries[b.1].id))
+        };
+        let k = k.min(scored.len());
+        if k < scored.len() && k > 0 {
+            scored.select_nth_unstable_by(k - 1, order);
+        }
+        scored[..k].sort_unstable_by(order);
+        &scored[..k]
     }
 }
 

@@ -35,15 +35,14 @@ fn rms(a: &[f64], b: &[f64]) -> f64 {
 
 /// `max(m, n) / min(m, n)` when enabled (Eq. 13), raised to `penalty_power`; else 1.
 pub fn penalty(m: usize, n: usize, params: &SimilarityParams) -> f64 {
-    if params.penalty {
-        let ratio = m.max(n) as f64 / m.min(n).max(1) as f64;
-        if params.penalty_power == 1.0 {
-            ratio
-        } else {
-            ratio.powf(params.penalty_power)
-        }
+    if !params.penalty || params.penalty_power == 0.0 {
+        return 1.0;
+    }
+    let ratio = m.max(n) as f64 / m.min(n).max(1) as f64;
+    if params.penalty_power == 1.0 {
+        ratio
     } else {
-        1.0
+        ratio.powf(params.penalty_power)
     }
 }
 
@@ -167,11 +166,29 @@ pub fn d2_distance(p: &Signature, q: &Signature) -> f64 {
 #[derive(Debug, Clone, PartialEq)]
 pub struct Summary {
     count: usize,
-    /// Feature means (ECC and region D2).
-    ecc_mean: Vec<f64>,
-    d2_mean: Vec<f64>,
-    /// Per projection, the features' scalar projections, sorted.
-    projections: Vec<Vec<f64>>,
+    ecc_len: usize,
+    d2_len: usize,
+    /// In one allocation, since the ranking reads it for every entry: the feature means (ECC,
+    /// then region D2), then per projection ([`PROJECTIONS`]) the features' scalar
+    /// projections, sorted.
+    values: Box<[f64]>,
+}
+
+/// Projections a [`Summary`] keeps per feature: [`projections`]' three and their sum.
+const PROJECTIONS: usize = 4;
+
+impl Summary {
+    fn ecc_mean(&self) -> &[f64] {
+        &self.values[..self.ecc_len]
+    }
+
+    fn d2_mean(&self) -> &[f64] {
+        &self.values[self.ecc_len..self.ecc_len + self.d2_len]
+    }
+
+    fn projections(&self) -> impl Iterator<Item = &[f64]> {
+        self.values[self.ecc_len + self.d2_len..].chunks_exact(self.count.max(1))
+    }
 }
 
 /// Scalar projections of a feature, each 1-Lipschitz for the ground distance before its weight
@@ -229,11 +246,20 @@ impl Summary {
         for values in &mut projected {
             values.sort_by(f64::total_cmp);
         }
+        debug_assert_eq!(projected.len(), PROJECTIONS);
+        let (ecc_mean, d2_mean) = (
+            mean(&signature.features, |f| &f.ecc),
+            mean(&signature.features, |f| &f.d2),
+        );
         Self {
             count,
-            ecc_mean: mean(&signature.features, |f| &f.ecc),
-            d2_mean: mean(&signature.features, |f| &f.d2),
-            projections: projected,
+            ecc_len: ecc_mean.len(),
+            d2_len: d2_mean.len(),
+            values: ecc_mean
+                .into_iter()
+                .chain(d2_mean)
+                .chain(projected.into_iter().flatten())
+                .collect(),
         }
     }
 }
@@ -265,11 +291,10 @@ fn mean<T: Copy + Into<f64>>(features: &[Feature], get: impl Fn(&Feature) -> &[T
 pub fn lower_bound(p: &Summary, q: &Summary, params: &SimilarityParams) -> f64 {
     let w = params.ecc_weight;
     let centroid =
-        w * rms(&p.ecc_mean, &q.ecc_mean) + (1.0 - w) * histogram_l1(&p.d2_mean, &q.d2_mean);
+        w * rms(p.ecc_mean(), q.ecc_mean()) + (1.0 - w) * histogram_l1(p.d2_mean(), q.d2_mean());
     let projected = p
-        .projections
-        .iter()
-        .zip(&q.projections)
+        .projections()
+        .zip(q.projections())
         .map(|(a, b)| emd_1d(a, b))
         .fold(0.0, f64::max);
     penalty(p.count, q.count, params) * centroid.max(projected)

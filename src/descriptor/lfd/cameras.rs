@@ -179,9 +179,10 @@ fn spread_systems(axes: &[DVec3; VIEWS]) -> [DMat3; LIGHT_FIELDS] {
     .take(CANDIDATES)
     .collect();
     let best_against = |others: &[DMat3]| {
+        let placed = placed_axes(axes, others);
         candidates
             .iter()
-            .map(|r| (closeness(axes, others, r), *r))
+            .map(|r| (closeness(axes, &placed, r), *r))
             .min_by(|a, b| a.0.total_cmp(&b.0))
             .expect("there are candidates")
     };
@@ -195,7 +196,7 @@ fn spread_systems(axes: &[DVec3; VIEWS]) -> [DMat3; LIGHT_FIELDS] {
             let mut others = systems.clone();
             let current = others.remove(j);
             let (close, candidate) = best_against(&others);
-            if close < closeness(axes, &others, &current) {
+            if close < closeness(axes, &placed_axes(axes, &others), &current) {
                 systems[j] = candidate;
                 improved = true;
             }
@@ -207,16 +208,22 @@ fn spread_systems(axes: &[DVec3; VIEWS]) -> [DMat3; LIGHT_FIELDS] {
     systems.try_into().expect("ten systems")
 }
 
-/// The largest `|cos|` between an axis turned by `r` and an axis turned by one of `others`:
-/// smaller is farther apart.
-fn closeness(axes: &[DVec3; VIEWS], others: &[DMat3], r: &DMat3) -> f64 {
+/// The axes of the systems `others`, turned once for all candidates compared with them.
+fn placed_axes(axes: &[DVec3; VIEWS], others: &[DMat3]) -> Vec<DVec3> {
+    others
+        .iter()
+        .flat_map(|o| axes.iter().map(move |b| *o * *b))
+        .collect()
+}
+
+/// The largest `|cos|` between an axis turned by `r` and one of the `placed` axes: smaller is
+/// farther apart.
+fn closeness(axes: &[DVec3; VIEWS], placed: &[DVec3], r: &DMat3) -> f64 {
     let mut largest: f64 = 0.0;
     for a in axes {
         let a = *r * *a;
-        for o in others {
-            for b in axes {
-                largest = largest.max(a.dot(*o * *b).abs());
-            }
+        for b in placed {
+            largest = largest.max(a.dot(*b).abs());
         }
     }
     largest
