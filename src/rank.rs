@@ -16,8 +16,9 @@ use std::sync::Arc;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
+use crate::descriptor::geodesic::Cumulative;
 use crate::descriptor::lfd::LfdSummary;
-use crate::descriptor::LightFieldDescriptor;
+use crate::descriptor::{GeodesicDescriptor, LightFieldDescriptor};
 use crate::params::{HybridParams, SimilarityParams};
 use crate::signature::Signature;
 use crate::similarity::{compare, compare_costs, d2_distance, lower_bound, CostMatrix, Summary};
@@ -207,8 +208,10 @@ struct Entry {
     id: Arc<str>,
     signature: Arc<Signature>,
     summary: Summary,
-    /// The LFD bound's side of this model, kept: the bound runs for every entry of a ranking.
+    /// The LFD bound's side of this model and the geodesic descriptor as it is compared, kept
+    /// beside the entry: both run for every entry of a hybrid ranking.
     lfd: Option<LfdSummary>,
+    geodesic: Option<Cumulative>,
 }
 
 /// Entries whose exact distances are computed together (in parallel) between bound checks.
@@ -233,6 +236,10 @@ impl Index {
         let entry = Arc::new(Entry {
             id: id.clone(),
             lfd: signature.lfd.as_ref().map(LightFieldDescriptor::summary),
+            geodesic: signature
+                .geodesic
+                .as_ref()
+                .map(GeodesicDescriptor::cumulative),
             signature,
             summary,
         });
@@ -414,32 +421,62 @@ impl Index {
         };
         // Left out (as `fuse` would leave it) when it weighs nothing, as in the defaults.
         let d2 = |e: &Entry| (h.d2.weight > 0.0).then(|| d2_distance(query, &e.signature));
-        let geodesic = |e: &Entry| geodesic_distance(query, &e.signature);
+        let query_geodesic = query.geodesic.as_ref().map(GeodesicDescriptor::cumulative);
+        let geodesic = |e: &Entry| Some(query_geodesic.as_ref()?.distance(e.geodesic.as_ref()?));
         let with_ecc = |e: &Entry| h.ecc.weight > 0.0 && has_features(query, &e.signature);
-        self.pruned(
-            k,
-            |e| keep(&e.id),
-            |e| {
+        // Cheapest first: the relaxed EMD with the LFD's bound, then with its distance
+        // (~50 µs), and only then the EMD itself.
+        let exact = |e: &Entry, kth: f64| {
+            let (d2, geodesic) = (d2(e), geodesic(e));
+            let costs = with_ecc(e).then(|| CostMatrix::new(query, &e.signature, params));
+            let relaxed = costs.as_ref().map(|c| c.relaxed_bound(params));
+            if fuse(h, [relaxed, d2, lfd_bound(e), geodesic]) > kth {
+                return None;
+            }
+            let lfd = hybrid_lfd(h, query, &e.signature);
+            if fuse(h, [relaxed, d2, lfd, geodesic]) > kth {
+                return None;
+            }
+            let ecc = costs.map(|c| compare_costs(&c, params).sim);
+            Some(fuse(h, [ecc, d2, lfd, geodesic]))
+        };
+
+        // The ECC bound costs about as much as the other parts' together, so it is computed
+        // only for entries that a coarse bound (the ECC part at 0, which `fuse` keeps a lower
+        // bound) does not reject against the k-th distance among the k entries of least
+        // coarse bound: a real k-th distance, so never below the true one.
+        let coarse = |e: &Entry| {
+            let ecc = with_ecc(e).then_some(0.0);
+            fuse(h, [ecc, d2(e), lfd_bound(e), geodesic(e)])
+        };
+        let mut coarse_order: Vec<(f64, usize)> = self
+            .entries
+            .par_iter()
+            .enumerate()
+            .filter(|(_, e)| keep(&e.id))
+            .map(|(i, e)| (coarse(e), i))
+            .collect();
+        let mut seeds: Vec<f64> = self
+            .smallest(&mut coarse_order, k)
+            .par_iter()
+            .filter_map(|&(_, i)| exact(&self.entries[i], f64::INFINITY))
+            .collect();
+        seeds.sort_by(f64::total_cmp);
+        let kth = seeds
+            .get(k.wrapping_sub(1))
+            .copied()
+            .unwrap_or(f64::INFINITY);
+        let order: Vec<(f64, usize)> = coarse_order
+            .par_iter()
+            .filter(|(bound, _)| *bound <= kth)
+            .map(|&(_, i)| {
+                let e = &self.entries[i];
                 let ecc = with_ecc(e).then(|| lower_bound(&summary, &e.summary, params));
-                fuse(h, [ecc, d2(e), lfd_bound(e), geodesic(e)])
-            },
-            // Cheapest first: the relaxed EMD with the LFD's bound, then with its distance
-            // (~50 µs), and only then the EMD itself.
-            |e, kth| {
-                let (d2, geodesic) = (d2(e), geodesic(e));
-                let costs = with_ecc(e).then(|| CostMatrix::new(query, &e.signature, params));
-                let relaxed = costs.as_ref().map(|c| c.relaxed_bound(params));
-                if fuse(h, [relaxed, d2, lfd_bound(e), geodesic]) > kth {
-                    return None;
-                }
-                let lfd = hybrid_lfd(h, query, &e.signature);
-                if fuse(h, [relaxed, d2, lfd, geodesic]) > kth {
-                    return None;
-                }
-                let ecc = costs.map(|c| compare_costs(&c, params).sim);
-                Some(fuse(h, [ecc, d2, lfd, geodesic]))
-            },
-        )
+                (fuse(h, [ecc, d2(e), lfd_bound(e), geodesic(e)]), i)
+            })
+            .collect();
+        let rejected = coarse_order.len() - order.len();
+        self.refine(k, order, rejected, exact)
     }
 
     /// Light field ranking with [`crate::descriptor::lfd::LfdSummary::lower_bound`]; entries without a descriptor are
@@ -481,21 +518,32 @@ impl Index {
         bound: impl Fn(&Entry) -> f64 + Sync,
         exact: impl Fn(&Entry, f64) -> Option<f64> + Sync,
     ) -> Ranking {
-        if k == 0 {
-            return Ranking {
-                hits: Vec::new(),
-                evaluated: 0,
-                pruned: self.entries.len(),
-            };
-        }
-        let mut order: Vec<(f64, usize)> = self
+        let order: Vec<(f64, usize)> = self
             .entries
             .par_iter()
             .enumerate()
             .filter(|(_, e)| keep(e))
             .map(|(i, e)| (bound(e), i))
             .collect();
+        self.refine(k, order, 0, exact)
+    }
 
+    /// The visit of [`Index::pruned`]: `order` holds each candidate's lower bound and entry;
+    /// `rejected` more entries were already rejected by a bound (they count as pruned).
+    fn refine(
+        &self,
+        k: usize,
+        mut order: Vec<(f64, usize)>,
+        rejected: usize,
+        exact: impl Fn(&Entry, f64) -> Option<f64> + Sync,
+    ) -> Ranking {
+        if k == 0 {
+            return Ranking {
+                hits: Vec::new(),
+                evaluated: 0,
+                pruned: rejected + order.len(),
+            };
+        }
         let mut best: Vec<Hit> = Vec::with_capacity(k + BATCH);
         let (mut evaluated, mut visited, mut sorted) = (0, 0, 0);
         while visited < order.len() {
@@ -542,7 +590,7 @@ impl Index {
         Ranking {
             hits: best,
             evaluated,
-            pruned: order.len() - evaluated,
+            pruned: rejected + order.len() - evaluated,
         }
     }
 
