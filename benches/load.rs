@@ -1,22 +1,33 @@
-//! Load figures of the HTTP service (issue #5), against the real release binary on a loopback
-//! port: ingest throughput of ~7 000-vertex meshes through `salient ingest`, then searches per
-//! second and p50/p99 latency of `GET /v1/models/{id}/similar?k=10` and `POST /v1/search?k=10`
-//! with 1 000 and 10 000 stored models, and the server's resident memory after loading them.
+//! Load figures of the HTTP service (issues #5 and #13), against the real release binary on a
+//! loopback port, written to `target/salient-bench/load.json` and printed as tables.
 //!
-//! `cargo bench --bench load` (a few minutes on 2 cores). `SALIENT_LOAD_SIZES=1000,10000` and
-//! `SALIENT_LOAD_SECONDS=10` (per similar-search measurement) change the run.
+//! `cargo bench --bench load` (minutes on 2 cores; the 100 000-model size about half an hour).
+//! `SALIENT_LOAD_SIZES=1000,10000,100000` and `SALIENT_LOAD_SECONDS=10` (per measurement) change
+//! the run.
+//!
+//! **Real signatures** when `../shared/data` is there (SALIENT_BENCH_DATA moves it): every fifth
+//! model of both shared collections is held out as a query; the others are ingested once into
+//! a base store (cached under `target/salient-bench/`, keyed by the extraction parameters), and
+//! the large stores are filled with perturbed copies of those (every descriptor perturbed, the
+//! LFD too, so no two stored models are equal). `similar` asks with stored models; `/v1/search`
+//! uploads the held-out meshes, whose copies are not stored, so the bounds must really work; the
+//! server's ranking time is read from each response's timings. Without the data the sources
+//! are generated shapes ("stars": UV spheres pushed out towards random tips), and the JSON says
+//! `"real_signatures": false`.
+//!
+//! Ingest: `salient ingest` of ~7 000-vertex meshes (SHREC'07 models of 6 000–8 000 vertices,
+//! or the stars) into an empty store, `/healthz` polled throughout; and at each size the rate
+//! of the ingest that runs beside the "during ingest" searches.
 //!
 //! A bench target rather than a subcommand: it stays out of `cargo test` and of the shipped
-//! binary, and cargo builds the server it starts in release mode. The meshes are generated
-//! ("stars": UV spheres pushed out towards random tips). The large stores are filled through
-//! the library (`Store::put`) with the signatures of the ingested meshes, each copy perturbed
-//! so that no two stored models are equal, then served by a fresh server.
+//! binary, and cargo builds the server it starts in release mode.
 
 #[path = "../tests/it/server.rs"]
 mod server;
 
+use std::collections::BTreeMap;
 use std::f64::consts::PI;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
@@ -24,17 +35,23 @@ use std::time::{Duration, Instant};
 use glam::DVec3;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
+use salient::descriptor::LightFieldDescriptor;
+use salient::rank::Method;
 use salient::store::{SledStore, Store};
-use salient::Signature;
-use serde_json::Value;
+use salient::{Params, Signature};
+use serde_json::{json, Value};
 use server::Server;
 
 const BIN: &str = env!("CARGO_BIN_EXE_salient");
 /// UV sphere resolution: 69 rings of 101 vertices and two poles, 6 971 vertices.
 const RINGS: usize = 69;
 const SEGMENTS: usize = 101;
-/// Meshes ingested (and the distinct signatures the large stores are made of).
+/// Generated meshes: ingested (and the distinct signatures the large stores are made of),
+/// and held out as queries.
 const MESHES: usize = 24;
+const HELD_OUT: usize = 8;
+/// Meshes of the ingest figure, at most.
+const INGESTED: usize = 40;
 /// Clients sending requests at once.
 const CLIENTS: usize = 4;
 
@@ -88,23 +105,180 @@ fn random_star(rng: &mut ChaCha8Rng) -> String {
     star_obj(&tips, rng.gen_range(0.2..0.45))
 }
 
-/// Uploads/s of `salient ingest` with `concurrency` into an empty store.
-fn ingest(meshes: &Path, concurrency: usize) -> f64 {
-    let data = tempfile::tempdir().expect("a temporary folder");
-    let server = Server::start(&data.path().join("store"), &[]);
+/// What a run measures with: folders of mesh files, and the held-out queries.
+struct Sources {
+    real: bool,
+    /// The meshes the base store is made of.
+    base: tempfile::TempDir,
+    /// ~7 000-vertex meshes for the ingest figure.
+    ingest: tempfile::TempDir,
+    /// Held-out meshes: their format's extension and bytes.
+    queries: Vec<(String, Vec<u8>)>,
+}
+
+fn data_dir() -> PathBuf {
+    std::env::var_os("SALIENT_BENCH_DATA").map_or_else(
+        || PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/data"),
+        PathBuf::from,
+    )
+}
+
+fn sources() -> Sources {
+    let data = data_dir();
+    let sets = ["shrec07-watertight", "capod"];
+    if sets.iter().all(|set| data.join(set).join("labels.tsv").is_file()) {
+        real_sources(&data, &sets)
+    } else {
+        eprintln!(
+            "{} not found: generated shapes, not real signatures",
+            data.display()
+        );
+        star_sources()
+    }
+}
+
+/// Every fifth model of each collection held out, the others the base; the ingest figure's
+/// meshes are SHREC'07 models of 6 000 to 8 000 vertices.
+fn real_sources(data: &Path, sets: &[&str]) -> Sources {
+    let (base, ingest) = (temporary(), temporary());
+    let mut queries = Vec::new();
+    for set in sets {
+        let root = data.join(set);
+        let labels = std::fs::read_to_string(root.join("labels.tsv")).expect("labels");
+        for (i, line) in labels.lines().skip(1).enumerate() {
+            let path = line.split('\t').next().expect("a path");
+            let bytes = std::fs::read(root.join(path)).expect("a mesh");
+            let ext = Path::new(path).extension().expect("an extension");
+            if i % 5 == 4 {
+                queries.push((ext.to_string_lossy().into_owned(), bytes));
+            } else {
+                let name = format!("{set}-{}", path.replace('/', "-"));
+                std::fs::write(base.path().join(name), bytes).expect("writes");
+            }
+        }
+    }
+    let stats = std::fs::read_to_string(data.join(sets[0]).join("mesh_stats.tsv")).expect("stats");
+    let mid_sized = stats.lines().skip(1).filter_map(|line| {
+        let mut fields = line.split('\t');
+        let (path, vertices) = (fields.next()?, fields.next()?.parse::<usize>().ok()?);
+        (6_000..=8_000).contains(&vertices).then_some(path)
+    });
+    for path in mid_sized.take(INGESTED) {
+        let name = path.replace('/', "-");
+        std::fs::copy(data.join(sets[0]).join(path), ingest.path().join(name)).expect("copies");
+    }
+    Sources {
+        real: true,
+        base,
+        ingest,
+        queries,
+    }
+}
+
+fn star_sources() -> Sources {
+    let (base, ingest) = (temporary(), temporary());
+    let mut rng = ChaCha8Rng::seed_from_u64(5);
+    let stars: Vec<String> = (0..MESHES + HELD_OUT).map(|_| random_star(&mut rng)).collect();
+    for (i, obj) in stars[..MESHES].iter().enumerate() {
+        for dir in [&base, &ingest] {
+            std::fs::write(dir.path().join(format!("star{i:02}.obj")), obj).expect("writes");
+        }
+    }
+    Sources {
+        real: false,
+        base,
+        ingest,
+        queries: stars[MESHES..]
+            .iter()
+            .map(|obj| ("obj".to_string(), obj.clone().into_bytes()))
+            .collect(),
+    }
+}
+
+fn temporary() -> tempfile::TempDir {
+    tempfile::tempdir().expect("a temporary folder")
+}
+
+fn mesh_count(dir: &Path) -> usize {
+    std::fs::read_dir(dir).expect("a folder").count()
+}
+
+/// Runs `salient ingest` of `meshes` into the server; returns its JSON summary.
+fn run_ingest(server: &Server, meshes: &Path, concurrency: usize) -> Value {
     let out = Command::new(BIN)
         .arg("ingest")
         .arg(meshes)
         .args(["--server", &server.url, "--json", "--concurrency"])
         .arg(concurrency.to_string())
+        .stderr(Stdio::null())
         .output()
         .expect("the client runs");
-    let summary: Value = serde_json::from_slice(&out.stdout).expect("a JSON summary");
-    assert_eq!(summary["added"], MESHES as u64, "{summary}");
-    MESHES as f64 / summary["seconds"].as_f64().expect("seconds")
+    serde_json::from_slice(&out.stdout).expect("a JSON summary")
 }
 
-/// The signature with every ECC value and D2 bin scaled by up to ±`amount` (D2 renormalised)
+/// Uploads/s of `salient ingest` (2 at a time, the cores' count) into an empty store, every
+/// upload stored, and the slowest `/healthz` answer meanwhile.
+fn ingest_figure(meshes: &Path, runtime: &tokio::runtime::Runtime) -> (f64, f64) {
+    let data = temporary();
+    let server = Server::start(&data.path().join("store"), &[]);
+    let health = server.at("/healthz");
+    let (stop, done) = std::sync::mpsc::channel::<()>();
+    let poller = std::thread::spawn({
+        let runtime = runtime.handle().clone();
+        move || {
+            let mut slowest = Duration::ZERO;
+            while done.try_recv().is_err() {
+                let clock = Instant::now();
+                let ok = runtime.block_on(async { reqwest::get(&health).await.is_ok() });
+                assert!(ok, "/healthz answers during the ingest");
+                slowest = slowest.max(clock.elapsed());
+                std::thread::sleep(Duration::from_millis(20));
+            }
+            slowest
+        }
+    });
+    let summary = run_ingest(&server, meshes, 2);
+    stop.send(()).expect("the poller runs");
+    let slowest = poller.join().expect("the poller ends");
+    let count = mesh_count(meshes);
+    assert_eq!(summary["added"], count as u64, "every upload stored: {summary}");
+    (
+        count as f64 / summary["seconds"].as_f64().expect("seconds"),
+        slowest.as_secs_f64() * 1e3,
+    )
+}
+
+/// The store of the base meshes, ingested once per set of extraction parameters and sources.
+fn base_store(sources: &Sources) -> PathBuf {
+    let key = format!(
+        "{}-{}",
+        if sources.real { "real" } else { "stars" },
+        hex_key(&Params::default().extraction_key())
+    );
+    let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("target/salient-bench");
+    let store = root.join(format!("base-{key}"));
+    let complete = store.with_extension("complete");
+    if !complete.exists() {
+        let _ = std::fs::remove_dir_all(&store);
+        std::fs::create_dir_all(&root).expect("creates");
+        let server = Server::start(&store, &[]);
+        let summary = run_ingest(&server, sources.base.path(), 2);
+        eprintln!("base store: {summary}");
+        std::fs::write(&complete, summary.to_string()).expect("writes");
+    }
+    store
+}
+
+/// A short stable name for a byte string (FNV-1a).
+fn hex_key(bytes: &[u8]) -> String {
+    let hash = bytes.iter().fold(0xcbf2_9ce4_8422_2325u64, |h, &b| {
+        (h ^ b as u64).wrapping_mul(0x0100_0000_01b3)
+    });
+    format!("{hash:016x}")
+}
+
+/// The signature with every descriptor perturbed: ECC values and D2 and geodesic bins scaled
+/// by up to ±`amount` (histograms renormalised), LFD coefficients moved by up to ±3 of 255,
 /// and, as `tests/synthetic` does, sometimes a feature fewer: copies spread around their
 /// original like the members of a class rather than piling up on it (which would let the
 /// ranking's bounds prune almost everything).
@@ -121,6 +295,20 @@ fn perturbed(signature: &Signature, rng: &mut ChaCha8Rng, amount: f64) -> Signat
         jitter_histogram(&mut f.d2, rng, amount);
     }
     jitter_histogram(&mut s.d2, rng, amount);
+    if let Some(g) = &mut s.geodesic {
+        jitter_histogram(&mut g.distances, rng, amount);
+        jitter_histogram(&mut g.eccentricity, rng, amount);
+    }
+    if let Some(lfd) = &s.lfd {
+        // Its images are opaque; their serialised form is the coefficients.
+        let mut images: Vec<Vec<u8>> =
+            serde_json::from_value(serde_json::to_value(lfd).expect("serialises")).expect("bytes");
+        for c in images.iter_mut().flatten() {
+            *c = (*c as i32 + rng.gen_range(-3..=3)).clamp(0, 255) as u8;
+        }
+        let images = serde_json::to_value(images).expect("serialises");
+        s.lfd = Some(serde_json::from_value::<LightFieldDescriptor>(images).expect("an LFD"));
+    }
     s
 }
 
@@ -137,7 +325,7 @@ fn jitter_histogram(bins: &mut [f32], rng: &mut ChaCha8Rng, amount: f64) {
 
 /// Adds models `from..to` to the store at `data`, perturbed copies of the models of `base`.
 fn fill(data: &Path, base: &Path, from: usize, to: usize) {
-    let source = SledStore::open(base).expect("the ingested store");
+    let source = SledStore::open(base).expect("the base store");
     let models: Vec<_> = source
         .load_all()
         .map(|loaded| {
@@ -156,7 +344,7 @@ fn fill(data: &Path, base: &Path, from: usize, to: usize) {
     for i in from..to {
         let (record, signature, upload) = &models[i % models.len()];
         let mut record = record.clone();
-        record.id = salient::model::ModelId::parse(&format!("m{i:05}")).expect("a valid id");
+        record.id = salient::model::ModelId::parse(&format!("m{i:06}")).expect("a valid id");
         record.tags = vec![format!("t{}", i % 10)];
         let bytes = perturbed(signature, &mut rng, 0.15).to_bytes();
         store.put(&record, &bytes, upload).expect("stores");
@@ -220,25 +408,45 @@ where
 }
 
 fn percentile_ms(values: &mut [f64], p: f64) -> f64 {
+    if values.is_empty() {
+        return f64::NAN;
+    }
     values.sort_by(f64::total_cmp);
     values[((values.len() - 1) as f64 * p).round() as usize]
 }
 
-fn report(models: usize, what: &str, mut run: Run) {
+/// Percentiles of a run: of the whole request, and of the server's ranking alone.
+struct Figures {
+    p50: f64,
+    p99: f64,
+    search_p50: f64,
+    search_p99: f64,
+}
+
+/// Prints a table row of the run and returns its figures.
+fn report(models: usize, what: &str, mut run: Run) -> Figures {
     let mut ms: Vec<f64> = run
         .latencies
         .iter()
         .map(|d| d.as_secs_f64() * 1e3)
         .collect();
+    let figures = Figures {
+        p50: percentile_ms(&mut ms, 0.5),
+        p99: percentile_ms(&mut ms, 0.99),
+        search_p50: percentile_ms(&mut run.search_ms, 0.5),
+        search_p99: percentile_ms(&mut run.search_ms, 0.99),
+    };
     println!(
-        "| {models} | {what} | {} | {:.1} | {:.1} | {:.1} | {:.1} | {:.0} |",
+        "| {models} | {what} | {} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.0} |",
         ms.len(),
         ms.len() as f64 / run.elapsed.as_secs_f64(),
-        percentile_ms(&mut ms, 0.5),
-        percentile_ms(&mut ms, 0.99),
-        percentile_ms(&mut run.search_ms, 0.5),
-        run.evaluated.iter().sum::<f64>() / run.evaluated.len() as f64,
+        figures.p50,
+        figures.p99,
+        figures.search_p50,
+        figures.search_p99,
+        run.evaluated.iter().sum::<f64>() / run.evaluated.len().max(1) as f64,
     );
+    figures
 }
 
 fn env_or<T: std::str::FromStr>(name: &str, default: T) -> T {
@@ -248,6 +456,20 @@ fn env_or<T: std::str::FromStr>(name: &str, default: T) -> T {
         .unwrap_or(default)
 }
 
+/// `similar` with stored models under `method`, by `CLIENTS` clients for `budget`.
+fn similar(
+    runtime: &tokio::runtime::Runtime,
+    client: &reqwest::Client,
+    url: &str,
+    (size, method, budget): (usize, Method, Duration),
+) -> Run {
+    let (c, u) = (client.clone(), url.to_string());
+    runtime.block_on(closed_loop(budget, usize::MAX, move |n| {
+        let id = (n * 7919) % size;
+        c.get(format!("{u}/v1/models/m{id:06}/similar?k=10&method={method}"))
+    }))
+}
+
 fn main() {
     let sizes: Vec<usize> = std::env::var("SALIENT_LOAD_SIZES")
         .unwrap_or_else(|_| "1000,10000".into())
@@ -255,59 +477,35 @@ fn main() {
         .map(|s| s.trim().parse().expect("SALIENT_LOAD_SIZES: counts"))
         .collect();
     let budget = Duration::from_secs(env_or("SALIENT_LOAD_SECONDS", 10));
-    let meshes = tempfile::tempdir().expect("a temporary folder");
-    let mut rng = ChaCha8Rng::seed_from_u64(5);
-    let queries: Vec<String> = (0..MESHES + 8).map(|_| random_star(&mut rng)).collect();
-    for (i, obj) in queries[..MESHES].iter().enumerate() {
-        std::fs::write(meshes.path().join(format!("star{i:02}.obj")), obj).expect("writes");
-    }
-    let horse = std::fs::read(concat!(
-        env!("CARGO_MANIFEST_DIR"),
-        "/tests/fixtures/capod_horse_m155.obj"
-    ))
-    .expect("the fixture");
-
-    println!("ingest of {MESHES} meshes of 6 971 vertices (salient ingest, empty store)\n");
-    println!("| concurrency | uploads/s |\n|---|---|");
-    for concurrency in [1, 2, 4] {
-        println!(
-            "| {concurrency} | {:.2} |",
-            ingest(meshes.path(), concurrency)
-        );
-    }
-
-    // The signatures the large stores are made of: one more ingest, kept.
-    let base_dir = tempfile::tempdir().expect("a temporary folder");
-    let base = base_dir.path().join("store");
-    {
-        let server = Server::start(&base, &[]);
-        let status = Command::new(BIN)
-            .arg("ingest")
-            .arg(meshes.path())
-            .args(["--server", &server.url])
-            .stdout(Stdio::null())
-            .status()
-            .expect("the client runs");
-        assert!(status.success());
-    }
-
-    println!(
-        "\n{CLIENTS} clients in a closed loop; search_ms is the server's ranking time alone, \
-         exact EMDs the models it did not prune\n"
-    );
-    println!(
-        "| models | request (k = 10) | requests | req/s | p50 ms | p99 ms | search_ms p50 | exact EMDs |"
-    );
-    println!("|---|---|---|---|---|---|---|---|");
-    let data_dir = tempfile::tempdir().expect("a temporary folder");
-    let data = data_dir.path().join("store");
     let runtime = tokio::runtime::Runtime::new().expect("a runtime");
     // A stuck server fails the run instead of hanging it.
     let client = reqwest::Client::builder()
         .timeout(Duration::from_secs(60))
         .build()
         .expect("a client");
+    let sources = sources();
+
+    let (ingest_rate, healthz_ms) = ingest_figure(sources.ingest.path(), &runtime);
+    println!(
+        "ingest of {} meshes into an empty store (salient ingest, 2 at a time): {ingest_rate:.2} \
+         uploads/s, slowest /healthz {healthz_ms:.0} ms\n",
+        mesh_count(sources.ingest.path())
+    );
+    let base = base_store(&sources);
+
+    println!(
+        "{CLIENTS} clients in a closed loop; search_ms is the server's ranking time alone, exact \
+         the models it did not prune; held-out: uploads of the {} held-out meshes\n",
+        sources.queries.len()
+    );
+    println!(
+        "| models | request (k = 10) | requests | req/s | p50 ms | p99 ms | search_ms p50 | search_ms p99 | exact |"
+    );
+    println!("|---|---|---|---|---|---|---|---|---|");
+    let data_dir = temporary();
+    let data = data_dir.path().join("store");
     let mut stored = 0;
+    let mut figures = Vec::new();
     for &size in &sizes {
         let clock = Instant::now();
         fill(&data, &base, stored, size);
@@ -317,57 +515,83 @@ fn main() {
             clock.elapsed().as_secs_f64()
         );
         stored = size;
+        let clock = Instant::now();
         let server = Server::start(&data, &[]);
-        eprintln!(
-            "server resident with {size} models: {:.0} MiB",
-            server.resident_mib().unwrap_or(f64::NAN)
-        );
-        let url = server.url.clone();
-        let (c, u) = (client.clone(), url.clone());
-        let run = runtime.block_on(closed_loop(budget, usize::MAX, move |n| {
-            let id = (n * 7919) % size;
-            c.get(format!("{u}/v1/models/m{id:05}/similar?k=10"))
-        }));
-        report(size, "GET /v1/models/{id}/similar", run);
-        let (c, u, body) = (client.clone(), url.clone(), horse.clone());
-        let run = runtime.block_on(closed_loop(budget, usize::MAX, move |_| {
-            c.post(format!("{u}/v1/search?k=10"))
-                .header("content-type", "model/obj")
-                .body(body.clone())
-        }));
-        report(size, "POST /v1/search, horse (346 vertices)", run);
-        let (c, u, bodies) = (client.clone(), url, queries[MESHES..].to_vec());
-        let run = runtime.block_on(closed_loop(budget * 3, 24, move |n| {
-            c.post(format!("{u}/v1/search?k=10"))
-                .header("content-type", "model/obj")
-                .body(bodies[n % bodies.len()].clone())
-        }));
-        report(size, "POST /v1/search, star (6 971 vertices)", run);
+        let startup_s = clock.elapsed().as_secs_f64();
+        let rss_mib = server.resident_mib().unwrap_or(f64::NAN);
+        eprintln!("server with {size} models: {rss_mib:.0} MiB resident, started in {startup_s:.1} s");
+        let mut methods = BTreeMap::new();
+        let mut during_rates = Vec::new();
+        for method in Method::ALL {
+            let run = similar(&runtime, &client, &server.url, (size, method, budget));
+            let stored_figures = report(size, &format!("similar, {method}"), run);
+            let (c, u, queries) = (client.clone(), server.url.clone(), sources.queries.clone());
+            let run = runtime.block_on(closed_loop(budget * 3, queries.len(), move |n| {
+                let (ext, bytes) = &queries[n % queries.len()];
+                c.post(format!("{u}/v1/search?k=10&method={method}&format={ext}"))
+                    .header("content-type", "application/octet-stream")
+                    .body(bytes.clone())
+            }));
+            let held_out = report(size, &format!("held-out upload, {method}"), run);
 
-        // Stored-model searches while an ingest keeps two extractions running: the figure an
-        // asset library sees while it indexes uploads. New content per size (a comment line
-        // changes the hash), so that nothing is skipped.
-        let uploads = tempfile::tempdir().expect("a temporary folder");
-        for (i, obj) in queries[MESHES..].iter().enumerate() {
-            let text = format!("# {size}\n{obj}");
-            std::fs::write(uploads.path().join(format!("new{i}.obj")), text).expect("writes");
+            // Stored-model searches while an ingest keeps two extractions running: the figure
+            // an asset library sees while it indexes uploads. New content each time (trailing
+            // blank lines change the hash, not the mesh), so that nothing is skipped.
+            let uploads = temporary();
+            let tail = "\n".repeat(1 + during_rates.len() + 10 * figures.len());
+            for (i, (ext, bytes)) in sources.queries.iter().enumerate() {
+                let mut bytes = bytes.clone();
+                bytes.extend_from_slice(tail.as_bytes());
+                std::fs::write(uploads.path().join(format!("new{i}.{ext}")), bytes).expect("writes");
+            }
+            let ingesting = std::thread::spawn({
+                let (url, dir) = (server.url.clone(), uploads.path().to_path_buf());
+                move || {
+                    let clock = Instant::now();
+                    let out = Command::new(BIN)
+                        .arg("ingest")
+                        .arg(&dir)
+                        .args(["--server", &url, "--concurrency", "2", "--json"])
+                        .stderr(Stdio::null())
+                        .output()
+                        .expect("the client runs");
+                    let summary: Value = serde_json::from_slice(&out.stdout).expect("a summary");
+                    summary["added"].as_f64().unwrap_or(0.0) / clock.elapsed().as_secs_f64()
+                }
+            });
+            let run = similar(&runtime, &client, &server.url, (size, method, budget));
+            let during = report(size, &format!("similar during ingest, {method}"), run);
+            during_rates.push(ingesting.join().expect("the ingest ends"));
+            methods.insert(
+                method.to_string(),
+                json!({
+                    "similar_p50_ms": stored_figures.p50,
+                    "similar_p99_ms": stored_figures.p99,
+                    "heldout_rank_p50_ms": held_out.search_p50,
+                    "heldout_rank_p99_ms": held_out.search_p99,
+                    "heldout_request_p50_ms": held_out.p50,
+                    "during_ingest_p99_ms": during.p99,
+                }),
+            );
         }
-        let mut ingesting = Command::new(BIN)
-            .arg("ingest")
-            .arg(uploads.path())
-            .args(["--server", &server.url, "--concurrency", "2"])
-            .stdout(Stdio::null())
-            .stderr(Stdio::null())
-            .spawn()
-            .expect("the client runs");
-        std::thread::sleep(Duration::from_millis(500));
-        let (c, u) = (client.clone(), server.url.clone());
-        let run = runtime.block_on(closed_loop(budget, usize::MAX, move |n| {
-            let id = (n * 7919) % size;
-            c.get(format!("{u}/v1/models/m{id:05}/similar?k=10"))
+        figures.push(json!({
+            "models": size,
+            "real_signatures": sources.real,
+            "rss_mib": rss_mib,
+            "startup_s": startup_s,
+            "methods": methods,
+            "ingest_during_uploads_per_s": during_rates.iter().sum::<f64>() / during_rates.len() as f64,
         }));
-        let _ = ingesting.kill();
-        let _ = ingesting.wait();
-        report(size, "GET /v1/models/{id}/similar during ingest", run);
     }
+    let out = json!({
+        "sizes": figures,
+        "default_method": Method::default().to_string(),
+        "ingest_uploads_per_s": ingest_rate,
+        "ingest_healthz_max_ms": healthz_ms,
+    });
+    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("target/salient-bench");
+    std::fs::create_dir_all(&dir).expect("creates");
+    let path = dir.join("load.json");
+    std::fs::write(&path, serde_json::to_string_pretty(&out).expect("JSON")).expect("writes");
+    println!("\n{}", path.display());
 }
