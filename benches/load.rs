@@ -126,7 +126,10 @@ fn data_dir() -> PathBuf {
 fn sources() -> Sources {
     let data = data_dir();
     let sets = ["shrec07-watertight", "capod"];
-    if sets.iter().all(|set| data.join(set).join("labels.tsv").is_file()) {
+    if sets
+        .iter()
+        .all(|set| data.join(set).join("labels.tsv").is_file())
+    {
         real_sources(&data, &sets)
     } else {
         eprintln!(
@@ -178,7 +181,9 @@ fn real_sources(data: &Path, sets: &[&str]) -> Sources {
 fn star_sources() -> Sources {
     let (base, ingest) = (temporary(), temporary());
     let mut rng = ChaCha8Rng::seed_from_u64(5);
-    let stars: Vec<String> = (0..MESHES + HELD_OUT).map(|_| random_star(&mut rng)).collect();
+    let stars: Vec<String> = (0..MESHES + HELD_OUT)
+        .map(|_| random_star(&mut rng))
+        .collect();
     for (i, obj) in stars[..MESHES].iter().enumerate() {
         for dir in [&base, &ingest] {
             std::fs::write(dir.path().join(format!("star{i:02}.obj")), obj).expect("writes");
@@ -241,7 +246,10 @@ fn ingest_figure(meshes: &Path, runtime: &tokio::runtime::Runtime) -> (f64, f64)
     stop.send(()).expect("the poller runs");
     let slowest = poller.join().expect("the poller ends");
     let count = mesh_count(meshes);
-    assert_eq!(summary["added"], count as u64, "every upload stored: {summary}");
+    assert_eq!(
+        summary["added"], count as u64,
+        "every upload stored: {summary}"
+    );
     (
         count as f64 / summary["seconds"].as_f64().expect("seconds"),
         slowest.as_secs_f64() * 1e3,
@@ -466,7 +474,9 @@ fn similar(
     let (c, u) = (client.clone(), url.to_string());
     runtime.block_on(closed_loop(budget, usize::MAX, move |n| {
         let id = (n * 7919) % size;
-        c.get(format!("{u}/v1/models/m{id:06}/similar?k=10&method={method}"))
+        c.get(format!(
+            "{u}/v1/models/m{id:06}/similar?k=10&method={method}"
+        ))
     }))
 }
 
@@ -519,7 +529,9 @@ fn main() {
         let server = Server::start(&data, &[]);
         let startup_s = clock.elapsed().as_secs_f64();
         let rss_mib = server.resident_mib().unwrap_or(f64::NAN);
-        eprintln!("server with {size} models: {rss_mib:.0} MiB resident, started in {startup_s:.1} s");
+        eprintln!(
+            "server with {size} models: {rss_mib:.0} MiB resident, started in {startup_s:.1} s"
+        );
         let mut methods = BTreeMap::new();
         let mut during_rates = Vec::new();
         for method in Method::ALL {
@@ -542,7 +554,8 @@ fn main() {
             for (i, (ext, bytes)) in sources.queries.iter().enumerate() {
                 let mut bytes = bytes.clone();
                 bytes.extend_from_slice(tail.as_bytes());
-                std::fs::write(uploads.path().join(format!("new{i}.{ext}")), bytes).expect("writes");
+                std::fs::write(uploads.path().join(format!("new{i}.{ext}")), bytes)
+                    .expect("writes");
             }
             let ingesting = std::thread::spawn({
                 let (url, dir) = (server.url.clone(), uploads.path().to_path_buf());

@@ -423,7 +423,11 @@ impl Index {
         let d2 = |e: &Entry| (h.d2.weight > 0.0).then(|| d2_distance(query, &e.signature));
         let query_geodesic = query.geodesic.as_ref().map(GeodesicDescriptor::cumulative);
         let geodesic = |e: &Entry| Some(query_geodesic.as_ref()?.distance(e.geodesic.as_ref()?));
-        let with_ecc = |e: &Entry| h.ecc.weight > 0.0 && has_features(query, &e.signature);
+        // From the entry's summary, not its signature: this runs for every entry, and the
+        // signature is another cache miss away.
+        let with_ecc = |e: &Entry| {
+            h.ecc.weight > 0.0 && !query.features.is_empty() && e.summary.features() > 0
+        };
         // Cheapest first: the relaxed EMD with the LFD's bound, then with its distance
         // (~50 µs), and only then the EMD itself.
         let exact = |e: &Entry, kth: f64| {

@@ -178,6 +178,11 @@ pub struct Summary {
 const PROJECTIONS: usize = 4;
 
 impl Summary {
+    /// Salient features summarised.
+    pub fn features(&self) -> usize {
+        self.count
+    }
+
     fn ecc_mean(&self) -> &[f64] {
         &self.values[..self.ecc_len]
     }
