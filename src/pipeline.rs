@@ -81,17 +81,50 @@ pub fn extract(raw: &RawMesh, params: &Params) -> Result<Extraction> {
     })
 }
 
+/// How much of a signature to compute.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Extent {
+    /// Everything: what is stored.
+    Full,
+    /// The global descriptors (D2, LFD, geodesic) without the ECC and the salient features:
+    /// all that a query ranked by `d2`, `lfd` or `geodesic` compares, at a fraction of the
+    /// cost.
+    Global,
+}
+
 /// The signature of a mesh file (with its glTF resources), in its stored form: what a query
 /// gets, so that it ranks exactly as the same model stored or searched offline.
 pub fn signature_of_file(
     bytes: &[u8],
     format: Format,
     resources: &dyn Resources,
-    params: &Params,
+    (params, extent): (&Params, Extent),
     limits: &Limits,
 ) -> Result<Signature> {
     let raw = mesh::load_bytes(bytes, format, resources, limits)?;
-    Signature::from_bytes(&compute(&raw, params)?.to_bytes())
+    let signature = match extent {
+        Extent::Full => compute(&raw, params)?,
+        Extent::Global => compute_global(&raw, params)?,
+    };
+    Signature::from_bytes(&signature.to_bytes())
+}
+
+/// The global descriptors of a loaded mesh ([`Extent::Global`]): no ECC, no features.
+pub fn compute_global(raw: &RawMesh, params: &Params) -> Result<Signature> {
+    params.validate()?;
+    let clock = Instant::now();
+    let mesh = mesh::prepare(raw, &params.mesh)?;
+    let topology_clock = Instant::now();
+    let topology = Topology::new(&mesh.positions, &mesh.triangles);
+    let stats = ExtractionStats {
+        load_seconds: 0.0,
+        mesh: mesh.stats.clone(),
+        topology_seconds: topology_clock.elapsed().as_secs_f64(),
+        mean_edge_length: topology.mean_edge_length(),
+        ecc: Default::default(),
+        total_seconds: clock.elapsed().as_secs_f64(),
+    };
+    Ok(global_descriptors(&mesh, &topology, params, stats))
 }
 
 /// The preview (thumbnails, 3D view) of a mesh file whose features are known: it is prepared
@@ -118,20 +151,14 @@ pub fn compute(raw: &RawMesh, params: &Params) -> Result<Signature> {
 /// Salient features and descriptors of an extraction (SPEC §3–4, §6).
 pub fn describe(extraction: &Extraction, params: &Params) -> Signature {
     let mesh = &extraction.mesh;
+    let mut signature =
+        global_descriptors(mesh, &extraction.topology, params, extraction.stats.clone());
     let clock = Instant::now();
     let (points, salient_stats) = salient::detect(extraction, params);
     let salient_seconds = clock.elapsed().as_secs_f64();
 
-    // One PRNG stream per histogram, all seeded from the mesh: the same mesh gives the same
-    // samples on any machine and thread count (SPEC §4).
     let clock = Instant::now();
-    let hash = mesh_hash(mesh);
-    let seed = u64::from_le_bytes(hash.0[..8].try_into().expect("a SHA-256 has 32 bytes"));
-    let rng = |stream: u64| {
-        let mut rng = ChaCha8Rng::seed_from_u64(seed);
-        rng.set_stream(stream);
-        rng
-    };
+    let rng = |stream| histogram_rng(&signature.mesh_hash, stream);
     let d2 = &params.d2;
     let region_range = 2.0 * params.ecc.local_size;
     let features: Vec<Feature> = points
@@ -155,33 +182,68 @@ pub fn describe(extraction: &Extraction, params: &Params) -> Signature {
             }
         })
         .collect();
+    let region_seconds = clock.elapsed().as_secs_f64();
+    signature.features = features;
+    let stats = &mut signature.stats;
+    stats.salient = salient_stats;
+    stats.salient_seconds = salient_seconds;
+    stats.d2_seconds += region_seconds;
+    stats.extraction.total_seconds += salient_seconds + region_seconds;
+    signature
+}
+
+/// One PRNG stream per histogram, all seeded from the mesh: the same mesh gives the same
+/// samples on any machine and thread count (SPEC §4).
+fn histogram_rng(hash: &MeshHash, stream: u64) -> ChaCha8Rng {
+    let seed = u64::from_le_bytes(hash.0[..8].try_into().expect("a SHA-256 has 32 bytes"));
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    rng.set_stream(stream);
+    rng
+}
+
+/// A signature with the global descriptors (D2, LFD, geodesic) of a prepared mesh and no
+/// features yet.
+fn global_descriptors(
+    mesh: &PreparedMesh,
+    topology: &Topology,
+    params: &Params,
+    extraction: ExtractionStats,
+) -> Signature {
+    let clock = Instant::now();
+    let hash = mesh_hash(mesh);
     let whole: Vec<_> = mesh
         .triangles
         .iter()
         .map(|t| t.map(|v| mesh.positions[v as usize]))
         .collect();
-    let global = d2_histogram(&whole, d2.samples, d2.bins, 2.0, &mut rng(u64::MAX));
+    let d2 = &params.d2;
+    let global = d2_histogram(
+        &whole,
+        d2.samples,
+        d2.bins,
+        2.0,
+        &mut histogram_rng(&hash, u64::MAX),
+    );
     let d2_seconds = clock.elapsed().as_secs_f64();
 
     let clock = Instant::now();
     let lfd = LightFieldDescriptor::compute(mesh);
     let lfd_seconds = clock.elapsed().as_secs_f64();
     let clock = Instant::now();
-    let geodesic = GeodesicDescriptor::compute(mesh, &extraction.topology);
+    let geodesic = GeodesicDescriptor::compute(mesh, topology);
     let geodesic_seconds = clock.elapsed().as_secs_f64();
 
     let mut stats = SignatureStats {
-        extraction: extraction.stats.clone(),
-        salient: salient_stats,
-        salient_seconds,
+        extraction,
         d2_seconds,
         lfd_seconds,
         geodesic_seconds,
+        ..Default::default()
     };
-    stats.extraction.total_seconds += salient_seconds + d2_seconds + lfd_seconds + geodesic_seconds;
+    stats.extraction.total_seconds += d2_seconds + lfd_seconds + geodesic_seconds;
     Signature {
         mesh_hash: hash,
-        features,
+        features: Vec::new(),
         d2: global,
         lfd: Some(lfd),
         geodesic: Some(geodesic),

@@ -164,6 +164,17 @@ impl Method {
         }
     }
 
+    /// Whether this method compares salient features, so that a query needs its ECC
+    /// ([`crate::pipeline::Extent`]): the ECC method, and the hybrid while its ECC part
+    /// weighs anything.
+    pub fn compares_features(self, params: &SimilarityParams) -> bool {
+        match self {
+            Method::Ecc => true,
+            Method::Hybrid => params.hybrid.ecc.weight > 0.0,
+            Method::D2 | Method::Lfd | Method::Geodesic => false,
+        }
+    }
+
     /// Whether `signature` holds every part this method weighs; a comparable signature
     /// that is not complete is ranked on part of the distance (see [`fuse`]).
     pub fn complete(self, signature: &Signature) -> bool {

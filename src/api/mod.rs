@@ -37,7 +37,7 @@ use utoipa_axum::router::OpenApiRouter;
 
 use crate::mesh::Format;
 use crate::model::Upload;
-use crate::pipeline::signature_of_file;
+use crate::pipeline::{signature_of_file, Extent};
 use crate::signature::{Signature, Staleness};
 use crate::store::{Store, StoreError};
 use auth::{required_scope, KeyError, KeySet};
@@ -84,8 +84,9 @@ pub struct App {
     keys: ArcSwap<KeySet>,
     /// Requests each key label may still make (`requests_per_minute`), if limited.
     rates: Option<governor::DefaultKeyedRateLimiter<String>>,
-    /// Signatures of recent queries by content hash (see [`App::extract_query`]).
-    queries: std::sync::Mutex<lru::LruCache<String, Arc<Signature>>>,
+    /// Signatures of recent queries by content hash, and how much of each was computed (see
+    /// [`App::extract_query`]).
+    queries: std::sync::Mutex<lru::LruCache<String, (Extent, Arc<Signature>)>>,
     /// Called on the ranking thread while it holds its catalogue snapshot (tests).
     ranking_hook: Option<Hook>,
 }
@@ -227,10 +228,14 @@ impl App {
             .map(|not_until| not_until.wait_time_from(DefaultClock::default().now()))
     }
 
-    /// The signature of a query upload: extracted, or remembered from a recent query with the
-    /// same content (the page asks for a query's preview right after its search, and a
-    /// search again with another method).
-    async fn extract_query(&self, upload: Arc<Upload>) -> Result<Arc<Signature>, AppError> {
+    /// The signature of a query upload to `extent`: extracted, or remembered from a recent
+    /// query with the same content (the page asks for a query's preview right after its
+    /// search, and a search again with another method); a full one serves either extent.
+    async fn extract_query(
+        &self,
+        upload: Arc<Upload>,
+        extent: Extent,
+    ) -> Result<Arc<Signature>, AppError> {
         let hash = upload.content_hash().to_string();
         let recent = self
             .queries
@@ -238,19 +243,30 @@ impl App {
             .expect("never poisoned")
             .get(&hash)
             .cloned();
-        if let Some(signature) = recent {
-            return Ok(signature);
+        match recent {
+            Some((had, signature)) if had == Extent::Full || had == extent => Ok(signature),
+            _ => {
+                let signature = self.extract_to(upload, extent).await?;
+                self.queries
+                    .lock()
+                    .expect("never poisoned")
+                    .put(hash, (extent, signature.clone()));
+                Ok(signature)
+            }
         }
-        let signature = self.extract(upload).await?;
-        self.queries
-            .lock()
-            .expect("never poisoned")
-            .put(hash, signature.clone());
-        Ok(signature)
     }
 
     /// Extracts the signature of an upload on the pool, in its stored form.
     async fn extract(&self, upload: Arc<Upload>) -> Result<Arc<Signature>, AppError> {
+        self.extract_to(upload, Extent::Full).await
+    }
+
+    /// [`App::extract`] to `extent`.
+    async fn extract_to(
+        &self,
+        upload: Arc<Upload>,
+        extent: Extent,
+    ) -> Result<Arc<Signature>, AppError> {
         let params = self.config.params.clone();
         let limits = self.config.limits;
         let clock = Instant::now();
@@ -261,7 +277,7 @@ impl App {
                     &upload.mesh,
                     upload.format,
                     &upload.resources,
-                    &params,
+                    (&params, extent),
                     &limits,
                 )
             })

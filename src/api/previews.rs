@@ -19,7 +19,7 @@ use super::models::no_model;
 use super::upload::{AppPath, AppQuery, MeshFile, MeshUpload, ModelPath};
 use super::AppState;
 use crate::model::ModelId;
-use crate::pipeline::preview_of_file;
+use crate::pipeline::{preview_of_file, Extent};
 use crate::preview::Preview;
 use crate::render::{comparison, png, thumbnail};
 use crate::signature::Signature;
@@ -256,7 +256,11 @@ pub async fn query_preview(
     let upload = Arc::new(upload.upload);
     // Without features: the mesh as the extraction would prepare it, no regions.
     let features = match q.features.unwrap_or(true) {
-        true => app.extract_query(upload.clone()).await?.features.clone(),
+        true => app
+            .extract_query(upload.clone(), Extent::Full)
+            .await?
+            .features
+            .clone(),
         false => Vec::new(),
     };
     let (mesh, limits, up) = (

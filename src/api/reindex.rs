@@ -22,7 +22,7 @@ use super::error::{AppError, ErrorBody};
 use super::{App, AppState};
 use crate::model::{now_unix, ModelId};
 use crate::params::Limits;
-use crate::pipeline::signature_of_file;
+use crate::pipeline::{signature_of_file, Extent};
 use crate::store::{Store, StoreResult};
 
 /// Key of the progress in the store's state.
@@ -204,7 +204,7 @@ async fn reextract(app: &Arc<App>, id: &ModelId) -> Result<(), String> {
                 &job.mesh,
                 job.format,
                 &job.resources,
-                &params,
+                (&params, Extent::Full),
                 &Limits::unlimited(),
             )
         })

@@ -13,6 +13,7 @@ use super::upload::{AppPath, AppQuery, MeshUpload, ModelPath};
 use super::AppState;
 use crate::model::ModelId;
 use crate::params::SimilarityParams;
+use crate::pipeline::Extent;
 use crate::rank::{contributions, distance, hybrid_parts, Method, Ranking, PARTS};
 use crate::signature::Signature;
 use crate::similarity::explain;
@@ -126,7 +127,8 @@ pub struct SearchResponse {
     /// Models ranked on part of the `hybrid` distance, because their stored signature lacks
     /// one of its descriptors (the others count for it until they are re-extracted).
     pub partial: usize,
-    /// Salient features of the query.
+    /// Salient features of the query; 0 under `d2`, `lfd` and `geodesic`, which compare none:
+    /// an uploaded query's ECC is not computed for them.
     pub query_features: usize,
     /// With `explain=true`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -287,7 +289,16 @@ pub async fn search(
     upload: MeshUpload,
 ) -> Result<Json<SearchResponse>, AppError> {
     let clock = Instant::now();
-    let signature = app.extract_query(Arc::new(upload.upload)).await?;
+    // A method that compares no salient features (and no explanation, which shows every
+    // method's distance) needs no ECC of the upload: most of an extraction's cost.
+    let method = q.method.unwrap_or_default();
+    let extent =
+        if q.explain.unwrap_or(false) || method.compares_features(&app.config.params.similarity) {
+            Extent::Full
+        } else {
+            Extent::Global
+        };
+    let signature = app.extract_query(Arc::new(upload.upload), extent).await?;
     let extract_ms = clock.elapsed().as_secs_f64() * 1e3;
     rank(&app, signature, q, None, clock, extract_ms).await
 }
@@ -347,6 +358,8 @@ pub async fn extract(
     State(app): State<AppState>,
     upload: MeshUpload,
 ) -> Result<Json<Signature>, AppError> {
-    let signature = app.extract_query(Arc::new(upload.upload)).await?;
+    let signature = app
+        .extract_query(Arc::new(upload.upload), Extent::Full)
+        .await?;
     Ok(Json(Signature::clone(&signature)))
 }

@@ -7,7 +7,7 @@ use std::path::PathBuf;
 use anyhow::Context;
 use indicatif::{ProgressBar, ProgressStyle};
 
-use salient::pipeline::signature_of_file;
+use salient::pipeline::{signature_of_file, Extent};
 use salient::signature::Signature;
 use salient::store::{SledStore, Store};
 use salient::Limits;
@@ -60,7 +60,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             &upload.mesh,
             upload.format,
             &upload.resources,
-            &params,
+            (&params, Extent::Full),
             &Limits::unlimited(),
         );
         match extracted {

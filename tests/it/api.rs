@@ -459,6 +459,33 @@ async fn search_similar_and_extract() {
         }
     }
 
+    // A method that compares no salient features runs no ECC of the upload (new content, so
+    // nothing remembered serves it), and ranks exactly as with the full signature: asked
+    // again after an `ecc` search of the same content, which extracts everything.
+    let search = |method: &'static str, body: Vec<u8>| {
+        let app = &app;
+        async move {
+            json(
+                app.post(format!("/v1/search?k=6&method={method}"))
+                    .header("content-type", "model/obj")
+                    .body(body)
+                    .send()
+                    .await,
+            )
+            .await
+        }
+    };
+    for (i, method) in ["d2", "lfd", "geodesic"].into_iter().enumerate() {
+        // Trailing blank lines: the same mesh, another upload.
+        let fresh = [query.clone(), vec![b'\n'; i + 1]].concat();
+        let global = search(method, fresh.clone()).await;
+        assert_eq!(global["query_features"], 0, "{method}: no ECC ran");
+        let full = search("ecc", fresh.clone()).await;
+        assert!(full["query_features"].as_u64().unwrap() > 0);
+        let again = search(method, fresh).await;
+        assert_eq!(global["results"], again["results"], "{method}");
+    }
+
     // Filtered by tag; and similar-to-stored leaves the model itself out.
     let tips = json(
         app.post("/v1/search?tag=tips")
