@@ -58,21 +58,11 @@ pub fn extract_path(path: &Path, params: &Params, limits: &Limits) -> Result<Ext
 
 /// Prepares `raw` (SPEC §1) and computes the ECC of every vertex (SPEC §2).
 pub fn extract(raw: &RawMesh, params: &Params) -> Result<Extraction> {
-    params.validate()?;
     let clock = Instant::now();
-    let mesh = mesh::prepare(raw, &params.mesh)?;
-    let topology_clock = Instant::now();
-    let topology = Topology::new(&mesh.positions, &mesh.triangles);
-    let topology_seconds = topology_clock.elapsed().as_secs_f64();
+    let (mesh, topology, mut stats) = prepare(raw, params)?;
     let ecc = ecc::compute(&mesh, &topology, &params.ecc);
-    let stats = ExtractionStats {
-        load_seconds: 0.0,
-        mesh: mesh.stats.clone(),
-        topology_seconds,
-        mean_edge_length: topology.mean_edge_length(),
-        ecc: ecc.stats.clone(),
-        total_seconds: clock.elapsed().as_secs_f64(),
-    };
+    stats.ecc = ecc.stats.clone();
+    stats.total_seconds = clock.elapsed().as_secs_f64();
     Ok(Extraction {
         mesh,
         topology,
@@ -111,6 +101,13 @@ pub fn signature_of_file(
 
 /// The global descriptors of a loaded mesh ([`Extent::Global`]): no ECC, no features.
 pub fn compute_global(raw: &RawMesh, params: &Params) -> Result<Signature> {
+    let (mesh, topology, stats) = prepare(raw, params)?;
+    Ok(global_descriptors(&mesh, &topology, params, stats))
+}
+
+/// What every extraction starts with: the parameters checked, the mesh prepared (SPEC §1)
+/// and its edge graph, with their statistics (no ECC yet).
+fn prepare(raw: &RawMesh, params: &Params) -> Result<(PreparedMesh, Topology, ExtractionStats)> {
     params.validate()?;
     let clock = Instant::now();
     let mesh = mesh::prepare(raw, &params.mesh)?;
@@ -124,7 +121,7 @@ pub fn compute_global(raw: &RawMesh, params: &Params) -> Result<Signature> {
         ecc: Default::default(),
         total_seconds: clock.elapsed().as_secs_f64(),
     };
-    Ok(global_descriptors(&mesh, &topology, params, stats))
+    Ok((mesh, topology, stats))
 }
 
 /// The preview (thumbnails, 3D view) of a mesh file whose features are known: it is prepared
