@@ -32,7 +32,7 @@ fn previews(c: &mut Criterion) {
             &bytes,
             format,
             &no_resources,
-            (&signature.params.mesh, &signature.features),
+            (&signature.params, &signature.features),
             &limits,
         )
         .expect("a preview")

@@ -13,7 +13,7 @@ use glam::DVec3;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use crate::geodesic::GeodesicScratch;
+use crate::geodesic::{GeodesicScratch, Surface};
 use crate::mesh::{PreparedMesh, Topology};
 use crate::params::{EccParams, HeightRule};
 use crate::waves::{Source, WaveDefect, WaveSet, WaveTracer};
@@ -176,7 +176,8 @@ impl Worker<'_> {
         let n = p.waves;
         let mut time = Timings::default();
         let clock = Instant::now();
-        let distances = self.geodesic.run(self.topology, s, p.local_size);
+        let surface = Surface::new(self.mesh, self.topology);
+        let distances = self.geodesic.run(surface, s, p.local_size);
         time.geodesic = clock.elapsed();
 
         let clock = Instant::now();
@@ -295,7 +296,7 @@ pub fn compute(mesh: &PreparedMesh, topology: &Topology, params: &EccParams) -> 
                 mesh,
                 topology,
                 params,
-                geodesic: GeodesicScratch::new(vertex_count),
+                geodesic: GeodesicScratch::new(vertex_count, params.geodesic),
                 tracer: WaveTracer::new(mesh.triangles.len()),
                 set: WaveSet::default(),
             },

@@ -59,7 +59,7 @@ pub mod waves;
 
 pub use error::{Error, Result};
 pub use params::{
-    CandidateRule, D2Params, EccParams, HeightRule, Limits, MeshParams, Params, RegionRule,
-    SalientParams, SimilarityParams,
+    CandidateRule, D2Params, EccParams, GeodesicRule, HeightRule, Limits, MeshParams, Params,
+    RegionRule, SalientParams, SimilarityParams,
 };
 pub use signature::{Feature, Signature};

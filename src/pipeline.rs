@@ -16,7 +16,7 @@ use sha2::{Digest, Sha256};
 use crate::descriptor::{d2_histogram, GeodesicDescriptor, LightFieldDescriptor};
 use crate::ecc::{self, EccField, EccStats};
 use crate::mesh::{self, Format, PrepareStats, PreparedMesh, RawMesh, Resources, Topology};
-use crate::params::{Limits, MeshParams, Params};
+use crate::params::{Limits, Params};
 use crate::preview::Preview;
 use crate::salient;
 use crate::signature::{Feature, MeshHash, Signature, SignatureStats};
@@ -131,13 +131,18 @@ pub fn preview_of_file(
     bytes: &[u8],
     format: Format,
     resources: &dyn Resources,
-    (mesh, features): (&MeshParams, &[Feature]),
+    (params, features): (&Params, &[Feature]),
     limits: &Limits,
 ) -> Result<Preview> {
     let raw = mesh::load_bytes(bytes, format, resources, limits)?;
-    let mesh = mesh::prepare(&raw, mesh)?;
+    let mesh = mesh::prepare(&raw, &params.mesh)?;
     let topology = Topology::new(&mesh.positions, &mesh.triangles);
-    Ok(Preview::new(&mesh, &topology, features))
+    Ok(Preview::new(
+        &mesh,
+        &topology,
+        features,
+        params.ecc.geodesic,
+    ))
 }
 
 /// Loads nothing: extracts the signature of an already loaded mesh.

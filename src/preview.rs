@@ -13,9 +13,10 @@ use glam::DVec3;
 use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
 
-use crate::geodesic::GeodesicScratch;
+use crate::geodesic::{GeodesicScratch, Surface};
 use crate::mesh::simplify::collapsed_triangles;
 use crate::mesh::{PreparedMesh, Topology};
+use crate::params::GeodesicRule;
 use crate::render::{region_colour, UpAxis, SURFACE};
 use crate::signature::{Feature, Signature};
 
@@ -48,14 +49,21 @@ pub struct Preview {
 
 impl Preview {
     /// The preview of a prepared mesh with the features its signature found on it.
-    pub fn new(mesh: &PreparedMesh, topology: &Topology, features: &[Feature]) -> Self {
+    /// `rule` is the signature's, so that each region is regrown as it was found.
+    pub fn new(
+        mesh: &PreparedMesh,
+        topology: &Topology,
+        features: &[Feature],
+        rule: GeodesicRule,
+    ) -> Self {
         let n = mesh.positions.len();
         let mut label = vec![NO_REGION; n];
         let mut nearest = vec![f64::INFINITY; n];
-        let mut scratch = GeodesicScratch::new(n);
+        let mut scratch = GeodesicScratch::new(n, rule);
         for (i, feature) in features.iter().enumerate().take(NO_REGION as usize) {
             let source = vertex_of(mesh, feature);
-            let distances = scratch.run(topology, source, feature.region_size);
+            let surface = Surface::new(mesh, topology);
+            let distances = scratch.run(surface, source, feature.region_size);
             for &v in distances.settled() {
                 let d = distances.get(v);
                 if d < feature.region_size && d < nearest[v as usize] {

@@ -131,7 +131,7 @@ impl Source {
                     &upload.mesh,
                     upload.format,
                     &upload.resources,
-                    (&signature.params.mesh, &signature.features),
+                    (&signature.params, &signature.features),
                     &limits,
                 )
             })
@@ -263,8 +263,8 @@ pub async fn query_preview(
             .clone(),
         false => Vec::new(),
     };
-    let (mesh, limits, up) = (
-        app.config.params.mesh.clone(),
+    let (params, limits, up) = (
+        app.config.params.clone(),
         app.config.limits,
         app.config.up_axis,
     );
@@ -275,7 +275,7 @@ pub async fn query_preview(
                 &upload.mesh,
                 upload.format,
                 &upload.resources,
-                (&mesh, &features),
+                (&params, &features),
                 &limits,
             )
             .map(|p| p.to_glb(up))

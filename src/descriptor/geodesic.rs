@@ -26,8 +26,9 @@ use glam::DVec3;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use crate::geodesic::GeodesicScratch;
+use crate::geodesic::{GeodesicScratch, Surface};
 use crate::mesh::{PreparedMesh, Topology};
+use crate::params::GeodesicRule;
 
 /// Dijkstra sources.
 pub const SOURCES: usize = 32;
@@ -55,9 +56,12 @@ impl GeodesicDescriptor {
         let runs: Vec<Vec<f32>> = sources
             .par_iter()
             .map_init(
-                || GeodesicScratch::new(positions.len()),
+                // Dijkstra whatever the ECC uses: these histograms are normalised by their
+                // mean, which takes out most of its uniform excess, and their tuned scale
+                // stays what it was.
+                || GeodesicScratch::new(positions.len(), GeodesicRule::Dijkstra),
                 |scratch, &s| {
-                    let d = scratch.run(topology, s, f64::INFINITY);
+                    let d = scratch.run(Surface::new(mesh, topology), s, f64::INFINITY);
                     (0..positions.len() as u32)
                         .map(|v| d.get(v) as f32)
                         .collect()

@@ -1,9 +1,11 @@
-//! Mesh loading and preparation (SPEC §1): load → weld → orient → simplify → normalise.
+//! Mesh loading and preparation (SPEC §1): load → weld → orient → simplify → normalise →
+//! smooth.
 
 pub mod load;
 pub mod orient;
 pub mod prepare;
 pub mod simplify;
+pub mod smooth;
 pub mod topology;
 pub mod weld;
 

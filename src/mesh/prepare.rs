@@ -7,6 +7,7 @@ use serde::{Deserialize, Serialize};
 
 use super::orient::{orient, OrientStats};
 use super::simplify::simplify;
+use super::smooth::{denoise, Denoising};
 use super::weld::{canonical_order, weld};
 use super::RawMesh;
 use crate::params::MeshParams;
@@ -17,8 +18,8 @@ use crate::Result;
 pub struct PreparedMesh {
     /// Vertices in the input file's coordinates (after glTF node transforms).
     pub input_positions: Vec<DVec3>,
-    /// The same vertices normalised into the unit sphere (SPEC §1.4):
-    /// `(input - centre) * scale`.
+    /// The same vertices normalised into the unit sphere (SPEC §1.4),
+    /// `(input - centre) * scale`, then smoothed (`MeshParams::smoothing`).
     pub positions: Vec<DVec3>,
     pub triangles: Vec<[u32; 3]>,
     /// Area-weighted surface centroid, in input coordinates.
@@ -40,6 +41,8 @@ pub struct PrepareStats {
     pub orientation: OrientStats,
     /// True when the mesh had more than `max_vertices` and was simplified (SPEC §1.5).
     pub simplified: bool,
+    /// Whether the mesh was rough and how much it was smoothed (`MeshParams::smoothing`).
+    pub denoising: Denoising,
     pub vertices: usize,
     pub triangles: usize,
     pub weld_seconds: f64,
@@ -81,10 +84,11 @@ pub fn prepare(raw: &RawMesh, params: &MeshParams) -> Result<PreparedMesh> {
 
     let clock = Instant::now();
     let (centre, scale) = normalisation(&input_positions, &triangles);
-    let positions = input_positions
+    let mut positions: Vec<DVec3> = input_positions
         .iter()
         .map(|&p| (p - centre) * scale)
         .collect();
+    stats.denoising = denoise(&mut positions, &triangles, params);
     stats.normalise_seconds = clock.elapsed().as_secs_f64();
     stats.vertices = input_positions.len();
     stats.triangles = triangles.len();

@@ -102,7 +102,7 @@ pub fn detect(extraction: &Extraction, params: &Params) -> (Vec<SalientPoint>, S
     stats.after_suppression = accepted.len();
 
     // §3.3–3.4: regions, then drop empty and small ones.
-    let mut scratch = GeodesicScratch::new(mesh.positions.len());
+    let mut scratch = GeodesicScratch::new(mesh.positions.len(), params.ecc.geodesic);
     let mut points: Vec<SalientPoint> = accepted
         .into_iter()
         .filter(|&v| ecc.region_size[v as usize] > 0.0)

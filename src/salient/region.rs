@@ -4,7 +4,7 @@
 
 use glam::DVec3;
 
-use crate::geodesic::GeodesicScratch;
+use crate::geodesic::{GeodesicScratch, Surface};
 use crate::mesh::{PreparedMesh, Topology};
 
 /// A salient region as a list of triangles in normalised coordinates.
@@ -14,7 +14,7 @@ pub struct Region {
     pub area: f64,
 }
 
-/// The region of radius `size` around `vertex`. Distances are the same bounded Dijkstra
+/// The region of radius `size` around `vertex`. Distances are the same bounded geodesic
 /// distances the waves used, so the region ends on the last wave.
 pub fn region(
     mesh: &PreparedMesh,
@@ -23,7 +23,7 @@ pub fn region(
     vertex: u32,
     size: f64,
 ) -> Region {
-    let distances = scratch.run(topology, vertex, size);
+    let distances = scratch.run(Surface::new(mesh, topology), vertex, size);
     let mut faces: Vec<u32> = distances
         .settled()
         .iter()

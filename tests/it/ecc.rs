@@ -10,9 +10,10 @@
 use crate::shapes;
 
 use glam::DVec3;
+use salient::eval::robustness::Perturbation;
 use salient::mesh::RawMesh;
 use salient::pipeline::{extract, Extraction};
-use salient::{HeightRule, Params};
+use salient::{GeodesicRule, HeightRule, Params};
 use std::f64::consts::FRAC_PI_2;
 
 fn run(raw: &RawMesh, params: &Params) -> Extraction {
@@ -291,4 +292,83 @@ fn boundary_vertices_get_flat_ecc() {
     assert!(ex.ecc.stats.wave1_invalid > 0);
     assert!(ex.ecc.stats.first_defect.open > 0);
     assert_eq!(ex.ecc.stats.first_defect.branching, 0);
+}
+
+/// SPEC §9 "Geodesics": fast marching removes most of Dijkstra's metrication, so on a sphere
+/// the ECC comes nearer its closed form `g / 2R`, and it stays deterministic.
+#[test]
+fn fast_marching_brings_the_sphere_nearer_its_closed_form() {
+    let raw = shapes::icosphere(4);
+    let mean_error = |rule| {
+        let mut params = Params::default();
+        params.ecc.geodesic = rule;
+        let ex = run(&raw, &params);
+        let r = ex.mesh.scale;
+        let n = ex.ecc.dimension();
+        let (mut sum, mut count) = (0.0, 0);
+        for v in 0..ex.ecc.len() {
+            for (i, &a) in ex.ecc.vector(v).iter().enumerate() {
+                let g = (i + 1) as f64 * ex.ecc.region_size[v] / n as f64;
+                sum += (a - g / (2.0 * r)).abs();
+                count += 1;
+            }
+        }
+        (sum / count as f64, ex)
+    };
+    let (dijkstra, _) = mean_error(GeodesicRule::Dijkstra);
+    let (marching, ex) = mean_error(GeodesicRule::FastMarching);
+    eprintln!("sphere mean |α − g/2R|: Dijkstra {dijkstra:.5}, fast marching {marching:.5}");
+    assert!(marching < 0.7 * dijkstra, "{marching} vs {dijkstra}");
+    let mut params = Params::default();
+    params.ecc.geodesic = GeodesicRule::FastMarching;
+    let again = rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .build()
+        .unwrap()
+        .install(|| run(&raw, &params));
+    assert!(again.ecc.vectors().eq(ex.ecc.vectors()));
+}
+
+/// Issue #12: Gaussian noise (0.5 % of the diagonal, a third of an edge here) makes bumps the
+/// first waves read as tips; the rough mesh is smoothed (`mesh.smoothing`) and the star keeps
+/// its five tips with at most one spurious point, where the unsmoothed mesh has four times as
+/// many points as tips.
+#[test]
+fn a_noisy_star_is_smoothed_and_keeps_its_tips() {
+    let raw = shapes::star(4, &shapes::five_tips());
+    let points = |params: &Params, mesh: &RawMesh| {
+        let ex = run(mesh, params);
+        let (points, _) = salient::salient::detect(&ex, params);
+        let at: Vec<DVec3> = points
+            .iter()
+            .map(|p| ex.mesh.positions[p.vertex as usize])
+            .collect();
+        (ex.mesh.stats.denoising, at)
+    };
+    let params = Params::default();
+    let noisy = Perturbation { noise: 0.005 }
+        .apply(&raw, &params, "star")
+        .unwrap();
+    let (clean, tips) = points(&params, &raw);
+    assert_eq!((clean.iterations, tips.len()), (0, 5), "{clean:?}");
+    let (smoothed, found) = points(&params, &noisy);
+    assert!(smoothed.iterations > 0, "{smoothed:?}");
+    assert!(found.len() <= 6, "{} salient points", found.len());
+    for tip in &tips {
+        assert!(
+            found
+                .iter()
+                .any(|p| p.distance(*tip) < params.salient.suppression_distance),
+            "tip {tip} lost"
+        );
+    }
+    let mut unsmoothed = Params::default();
+    unsmoothed.mesh.smoothing = 0.0;
+    let (none, raw_points) = points(&unsmoothed, &noisy);
+    assert_eq!(none.iterations, 0);
+    assert!(
+        raw_points.len() >= 20,
+        "{} salient points without smoothing",
+        raw_points.len()
+    );
 }
