@@ -67,12 +67,16 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     writeln!(out, "{}", args.mesh.display())?;
     writeln!(
         out,
-        "  mesh: {} vertices / {} triangles read, {} welded, {} used{}",
+        "  mesh: {} vertices / {} triangles read, {} welded, {} used{}{}",
         m.input_vertices,
         m.input_triangles,
         m.welded_vertices,
         m.vertices,
-        if m.simplified { " (simplified)" } else { "" }
+        if m.simplified { " (simplified)" } else { "" },
+        match m.denoising.iterations {
+            0 => String::new(),
+            n => format!(" (rough: smoothed, {n} passes)"),
+        }
     )?;
     writeln!(
         out,

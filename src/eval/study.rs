@@ -21,7 +21,7 @@ use super::report::{score, write, write_json, Table};
 use super::retrieval::{evaluate, DistanceMatrix};
 use super::{LabelledCollection, Progress};
 use crate::collection::{read, SignatureCache};
-use crate::params::{CandidateRule, HeightRule, Limits, Params, RegionRule};
+use crate::params::{CandidateRule, GeodesicRule, HeightRule, Limits, Params, RegionRule};
 use crate::pipeline::{describe, extract_path, Extraction};
 use crate::rank::Method;
 use crate::signature::Signature;
@@ -45,6 +45,8 @@ pub enum Change {
     Height(HeightRule),
     Candidates(CandidateRule),
     Regions(RegionRule),
+    /// Local geodesics (SPEC §2.1, §9).
+    Geodesic(GeodesicRule),
 }
 
 impl Change {
@@ -58,6 +60,7 @@ impl Change {
             Change::Height(_) => "height",
             Change::Candidates(_) => "candidates",
             Change::Regions(_) => "region_rule",
+            Change::Geodesic(_) => "geodesic",
         }
     }
 
@@ -69,6 +72,8 @@ impl Change {
             Change::Height(rule) => format!("{rule:?}").to_lowercase(),
             Change::Candidates(rule) => format!("{rule:?}").to_lowercase(),
             Change::Regions(rule) => format!("{rule:?}").to_lowercase(),
+            Change::Geodesic(GeodesicRule::Dijkstra) => "dijkstra".into(),
+            Change::Geodesic(GeodesicRule::FastMarching) => "fast_marching".into(),
         }
     }
 
@@ -82,13 +87,14 @@ impl Change {
             Change::Height(rule) => params.ecc.height = rule,
             Change::Candidates(rule) => params.salient.candidates = rule,
             Change::Regions(rule) => params.salient.region_rule = rule,
+            Change::Geodesic(rule) => params.ecc.geodesic = rule,
         }
     }
 }
 
 /// The alternatives tried: `W` ∈ {0, 0.25, 0.75, 1}, penalty off, `K` ∈ {3, 8}, `flat_max` ∈
 /// {0.25, 1}, `D_g` ∈ {0.2, 0.3, 0.4}, and the paper's height, candidate and region rules
-/// (`Params::paper`), skipping any that `base` already has.
+/// (`Params::paper`), and fast-marching geodesics, skipping any that `base` already has.
 pub fn grid(base: &Params) -> Vec<Change> {
     let changes = [0.0, 0.25, 0.75, 1.0]
         .map(Change::EccWeight)
@@ -104,6 +110,7 @@ pub fn grid(base: &Params) -> Vec<Change> {
             Change::Height(HeightRule::Paper),
             Change::Candidates(CandidateRule::Norm),
             Change::Regions(RegionRule::Area),
+            Change::Geodesic(GeodesicRule::FastMarching),
         ]);
     changes.filter(|c| with(base, &[*c]) != *base).collect()
 }
