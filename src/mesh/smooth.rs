@@ -6,8 +6,9 @@
 //! tuning halves (CAPOD's low-poly pianos and chairs lose their thin parts; tuning mAP 0.881
 //! → 0.856 over 0.08), so the rule tests for noise first: on a smooth surface the normal
 //! component of the umbrella vector changes slowly, so it correlates with its neighbours'
-//! (≥ 0.29 on every sampled clean model of both collections), while noise makes it flip from
-//! vertex to vertex (≤ 0.06 at 0.5 % noise on SHREC'07's; `docs/results/README.md`, "Noise").
+//! (≥ 0.23 on every clean model of both collections but CAPOD's coarse pianos), while noise
+//! makes it flip from vertex to vertex (≤ 0.18 on every SHREC'07 model at 0.5 % noise;
+//! `docs/results/README.md`, "Noise").
 //!
 //! Plain Laplacian smoothing shrinks every convex tip, the very thing salient points are; the
 //! μ step (slightly larger than λ, negative) undoes the shrinking of low frequencies, so the
@@ -80,14 +81,16 @@ pub fn correlation(positions: &[DVec3], triangles: &[[u32; 3]], stencils: &[Sten
         .iter()
         .enumerate()
         .map(|(v, stencil)| {
-            let p = positions[v];
-            let edge = stencil.iter().map(|&(_, k)| 1.0 / k).sum::<f64>() / stencil.len() as f64;
-            umbrella(positions, p, stencil).map_or(0.0, |u| u.dot(normals[v]) / edge)
+            umbrella(positions, positions[v], stencil).map_or(0.0, |u| {
+                let edge =
+                    stencil.iter().map(|&(_, k)| 1.0 / k).sum::<f64>() / stencil.len() as f64;
+                u.dot(normals[v]) / edge
+            })
         })
         .collect();
     let (mut agreement, mut energy) = (0.0, 0.0);
     for (v, stencil) in stencils.iter().enumerate() {
-        if let Some(&(_, _)) = stencil.first() {
+        if !stencil.is_empty() {
             let mean =
                 stencil.iter().map(|&(w, _)| s[w as usize]).sum::<f64>() / stencil.len() as f64;
             agreement += s[v] * mean;
@@ -129,8 +132,6 @@ pub fn taubin(
             _ => 0,
         }
     };
-    let mut moved = positions.to_vec();
-    let mut iterations = 0;
     let rough = |positions: &[DVec3]| {
         until
             .is_some_and(|(triangles, smooth)| correlation(positions, triangles, stencils) < smooth)
@@ -140,6 +141,8 @@ pub fn taubin(
     if target(positions) == 0 {
         return 0;
     }
+    let mut moved = positions.to_vec();
+    let mut iterations = 0;
     while iterations < MAX_ITERATIONS && (iterations < target(positions) || rough(positions)) {
         iterations += 1;
         for factor in [LAMBDA, MU] {
