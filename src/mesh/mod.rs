@@ -15,6 +15,25 @@ pub use topology::Topology;
 
 use glam::DVec3;
 
+/// A `n × n` grid on the unit square in the plane z = 0, two triangles a cell, vertices row
+/// by row: the flat surface unit tests know every answer on.
+#[cfg(test)]
+pub(crate) fn grid(n: u32) -> (Vec<DVec3>, Vec<[u32; 3]>) {
+    let row = n + 1;
+    let positions = (0..row * row)
+        .map(|i| DVec3::new((i % row) as f64, (i / row) as f64, 0.0) / n as f64)
+        .collect();
+    let mut triangles = Vec::new();
+    for y in 0..n {
+        for x in 0..n {
+            let v = y * row + x;
+            triangles.push([v, v + 1, v + row + 1]);
+            triangles.push([v, v + row + 1, v + row]);
+        }
+    }
+    (positions, triangles)
+}
+
 /// A triangle soup as read from a file, in the file's own coordinates (glTF node transforms
 /// applied). Nothing is welded or cleaned yet; indices are checked to be in range and
 /// coordinates to be finite.

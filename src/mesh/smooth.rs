@@ -198,25 +198,7 @@ fn vertex_normals(positions: &[DVec3], triangles: &[[u32; 3]]) -> Vec<DVec3> {
 mod tests {
     use super::*;
 
-    /// A `n × n` grid on the unit square, two triangles a cell.
-    fn grid(n: u32) -> (Vec<DVec3>, Vec<[u32; 3]>) {
-        let mut p = Vec::new();
-        for y in 0..=n {
-            for x in 0..=n {
-                p.push(DVec3::new(x as f64 / n as f64, y as f64 / n as f64, 0.0));
-            }
-        }
-        let row = n + 1;
-        let mut t = Vec::new();
-        for y in 0..n {
-            for x in 0..n {
-                let v = y * row + x;
-                t.push([v, v + 1, v + row + 1]);
-                t.push([v, v + row + 1, v + row]);
-            }
-        }
-        (p, t)
-    }
+    use crate::mesh::grid;
 
     #[test]
     fn a_plane_stays_flat_and_a_spike_flattens() {
