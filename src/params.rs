@@ -194,7 +194,8 @@ pub struct MeshParams {
     pub smoothing: f64,
     /// A mesh is rough, and smoothed, when the neighbour correlation of its normal umbrella
     /// field (`mesh::smooth::correlation`) is below this: clean models of both collections
-    /// measure at least 0.29, SHREC'07's at 0.5 % noise at most 0.06.
+    /// measure at least 0.23 (but CAPOD's pianos, too coarse to be smoothed), SHREC'07's at
+    /// 0.5 % noise at most 0.18.
     pub rough_correlation: f64,
 }
 

@@ -60,9 +60,9 @@ impl Preview {
         let mut label = vec![NO_REGION; n];
         let mut nearest = vec![f64::INFINITY; n];
         let mut scratch = GeodesicScratch::new(n, rule);
+        let surface = Surface::new(mesh, topology);
         for (i, feature) in features.iter().enumerate().take(NO_REGION as usize) {
             let source = vertex_of(mesh, feature);
-            let surface = Surface::new(mesh, topology);
             let distances = scratch.run(surface, source, feature.region_size);
             for &v in distances.settled() {
                 let d = distances.get(v);
