@@ -22,6 +22,8 @@
 //! A bench target rather than a subcommand: it stays out of `cargo test` and of the shipped
 //! binary, and cargo builds the server it starts in release mode.
 
+#[path = "support/corpus.rs"]
+mod corpus;
 #[path = "../tests/it/server.rs"]
 mod server;
 
@@ -35,10 +37,9 @@ use std::time::{Duration, Instant};
 use glam::DVec3;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-use salient::descriptor::LightFieldDescriptor;
 use salient::rank::Method;
 use salient::store::{SledStore, Store};
-use salient::{Params, Signature};
+
 use serde_json::{json, Value};
 use server::Server;
 
@@ -116,15 +117,8 @@ struct Sources {
     queries: Vec<(String, Vec<u8>)>,
 }
 
-fn data_dir() -> PathBuf {
-    std::env::var_os("SALIENT_BENCH_DATA").map_or_else(
-        || PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/data"),
-        PathBuf::from,
-    )
-}
-
 fn sources() -> Sources {
-    let data = data_dir();
+    let data = corpus::data_dir();
     let sets = ["shrec07-watertight", "capod"];
     if sets
         .iter()
@@ -258,17 +252,11 @@ fn ingest_figure(meshes: &Path, runtime: &tokio::runtime::Runtime) -> (f64, f64)
 
 /// The store of the base meshes, ingested once per set of extraction parameters and sources.
 fn base_store(sources: &Sources) -> PathBuf {
-    let key = format!(
-        "{}-{}",
-        if sources.real { "real" } else { "stars" },
-        hex_key(&Params::default().extraction_key())
-    );
-    let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("target/salient-bench");
-    let store = root.join(format!("base-{key}"));
+    let store = corpus::base_store_path(sources.real);
     let complete = store.with_extension("complete");
     if !complete.exists() {
         let _ = std::fs::remove_dir_all(&store);
-        std::fs::create_dir_all(&root).expect("creates");
+        std::fs::create_dir_all(store.parent().expect("a parent")).expect("creates");
         let server = Server::start(&store, &[]);
         let summary = run_ingest(&server, sources.base.path(), 2);
         eprintln!("base store: {summary}");
@@ -277,76 +265,9 @@ fn base_store(sources: &Sources) -> PathBuf {
     store
 }
 
-/// A short stable name for a byte string (FNV-1a).
-fn hex_key(bytes: &[u8]) -> String {
-    let hash = bytes.iter().fold(0xcbf2_9ce4_8422_2325u64, |h, &b| {
-        (h ^ b as u64).wrapping_mul(0x0100_0000_01b3)
-    });
-    format!("{hash:016x}")
-}
-
-/// The signature with every descriptor perturbed: ECC values and D2 and geodesic bins scaled
-/// by up to ±`amount` (histograms renormalised), LFD coefficients moved by up to ±3 of 255,
-/// and, as `tests/synthetic` does, sometimes a feature fewer: copies spread around their
-/// original like the members of a class rather than piling up on it (which would let the
-/// ranking's bounds prune almost everything).
-fn perturbed(signature: &Signature, rng: &mut ChaCha8Rng, amount: f64) -> Signature {
-    let mut s = signature.clone();
-    if s.features.len() > 2 && rng.gen_bool(0.3) {
-        let drop = rng.gen_range(0..s.features.len());
-        s.features.remove(drop);
-    }
-    for f in &mut s.features {
-        f.ecc
-            .iter_mut()
-            .for_each(|a| *a *= 1.0 + rng.gen_range(-amount..amount));
-        jitter_histogram(&mut f.d2, rng, amount);
-    }
-    jitter_histogram(&mut s.d2, rng, amount);
-    if let Some(g) = &mut s.geodesic {
-        jitter_histogram(&mut g.distances, rng, amount);
-        jitter_histogram(&mut g.eccentricity, rng, amount);
-    }
-    if let Some(lfd) = &s.lfd {
-        // Its images are opaque; their serialised form is the coefficients.
-        let mut images: Vec<Vec<u8>> =
-            serde_json::from_value(serde_json::to_value(lfd).expect("serialises")).expect("bytes");
-        for c in images.iter_mut().flatten() {
-            *c = (*c as i32 + rng.gen_range(-3..=3)).clamp(0, 255) as u8;
-        }
-        let images = serde_json::to_value(images).expect("serialises");
-        s.lfd = Some(serde_json::from_value::<LightFieldDescriptor>(images).expect("an LFD"));
-    }
-    s
-}
-
-/// Each bin scaled by up to ±`amount`, then the histogram renormalised.
-fn jitter_histogram(bins: &mut [f32], rng: &mut ChaCha8Rng, amount: f64) {
-    for v in bins.iter_mut() {
-        *v *= (1.0 + rng.gen_range(-amount..amount)) as f32;
-    }
-    let sum: f32 = bins.iter().sum();
-    if sum > 0.0 {
-        bins.iter_mut().for_each(|v| *v /= sum);
-    }
-}
-
 /// Adds models `from..to` to the store at `data`, perturbed copies of the models of `base`.
 fn fill(data: &Path, base: &Path, from: usize, to: usize) {
-    let source = SledStore::open(base).expect("the base store");
-    let models: Vec<_> = source
-        .load_all()
-        .map(|loaded| {
-            let loaded = loaded.expect("loads");
-            let upload = source
-                .upload(loaded.record.id.as_str())
-                .expect("reads")
-                .expect("stored");
-            let signature = Signature::from_bytes(&loaded.signature).expect("decodes");
-            (loaded.record, signature, upload)
-        })
-        .collect();
-    drop(source);
+    let models = corpus::load_base(base);
     let store = SledStore::open(data).expect("opens");
     let mut rng = ChaCha8Rng::seed_from_u64(from as u64);
     for i in from..to {
@@ -354,7 +275,7 @@ fn fill(data: &Path, base: &Path, from: usize, to: usize) {
         let mut record = record.clone();
         record.id = salient::model::ModelId::parse(&format!("m{i:06}")).expect("a valid id");
         record.tags = vec![format!("t{}", i % 10)];
-        let bytes = perturbed(signature, &mut rng, 0.15).to_bytes();
+        let bytes = corpus::perturbed(signature, &mut rng, 0.15).to_bytes();
         store.put(&record, &bytes, upload).expect("stores");
     }
 }

@@ -3,13 +3,17 @@
 //! prototypes of smooth ECC curves and unimodal region D2 histograms, members perturbed, with
 //! light fields and geodesic histograms for the hybrid.
 
+#[path = "support/corpus.rs"]
+mod corpus;
 #[path = "../tests/it/synthetic.rs"]
 mod synthetic;
 
 use std::time::Instant;
 
+use rand::SeedableRng;
+
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
-use salient::rank::{Index, Method};
+use salient::rank::{Index, Method, Scope};
 use salient::similarity::compare;
 use salient::{Params, Signature};
 
@@ -87,5 +91,134 @@ fn search_100k(c: &mut Criterion) {
     group.finish();
 }
 
+/// Resident memory of this process, MiB (Linux).
+fn resident_mib() -> f64 {
+    let statm = std::fs::read_to_string("/proc/self/statm").unwrap_or_default();
+    let pages: f64 = statm
+        .split_whitespace()
+        .nth(1)
+        .and_then(|p| p.parse().ok())
+        .unwrap_or(f64::NAN);
+    pages * 4096.0 / (1 << 20) as f64
+}
+
+/// The `p`-th percentile of `values` (sorted in place).
+fn percentile(values: &mut [f64], p: f64) -> f64 {
+    values.sort_by(f64::total_cmp);
+    values[((values.len() - 1) as f64 * p).round() as usize]
+}
+
+/// Ranking cost on **real signatures**: the load bench's base store (both shared collections
+/// less every fifth model, extracted once by `cargo bench --bench load`) copied with every
+/// descriptor perturbed into `SALIENT_RANK_MODELS` entries (100 000), ranked in process on one
+/// thread: `similar` (a stored entry, itself left out) and held-out queries (every fifth base
+/// model, whose copies are not stored). Prints one row per method.
+fn real_signatures(_: &mut Criterion) {
+    let base = corpus::base_store_path(true);
+    if !base.with_extension("complete").exists() {
+        eprintln!(
+            "real signatures: {} not found (made by `cargo bench --bench load` with \
+             ../shared/data); skipped",
+            base.display()
+        );
+        return;
+    }
+    let size: usize = std::env::var("SALIENT_RANK_MODELS")
+        .ok()
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(100_000);
+    let models: Vec<Signature> = corpus::load_base(&base)
+        .into_iter()
+        .map(|(_, s, _)| s)
+        .collect();
+    let (held_out, sources): (Vec<_>, Vec<_>) = models
+        .into_iter()
+        .enumerate()
+        .partition(|(i, _)| i % 5 == 4);
+    let before = resident_mib();
+    let clock = Instant::now();
+    let mut index = Index::new(Params::default().similarity);
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
+    for i in 0..size {
+        let source = &sources[i % sources.len()].1;
+        index.insert(
+            format!("m{i:06}"),
+            corpus::perturbed(source, &mut rng, 0.15),
+        );
+    }
+    eprintln!(
+        "real signatures: {size} perturbed copies of {} models in {:.1} s, {:.0} MiB resident \
+         for the index; {} held-out queries",
+        sources.len(),
+        clock.elapsed().as_secs_f64(),
+        resident_mib() - before,
+        held_out.len()
+    );
+    let similar: Vec<(Option<String>, Signature)> = (0..held_out.len())
+        .map(|q| {
+            let id = format!("m{:06}", q * 997 % size);
+            let signature = Signature::clone(index.get(&id).expect("stored"));
+            (Some(id), signature)
+        })
+        .collect();
+    let one_thread = rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .build()
+        .expect("a pool");
+    eprintln!("| method | queries | p50 ms | p99 ms | mean ms | exact per query |");
+    eprintln!("|---|---|---:|---:|---:|---:|");
+    // `SALIENT_RANK_METHODS=hybrid,lfd` narrows the table (to profile one method).
+    let methods: Vec<Method> = std::env::var("SALIENT_RANK_METHODS").map_or_else(
+        |_| Method::ALL.to_vec(),
+        |names| {
+            names
+                .split(',')
+                .map(|m| m.parse().expect("a method"))
+                .collect()
+        },
+    );
+    for method in methods {
+        /// Queries: the id left out of the ranking (a stored model's own), and the signature.
+        type Queries<'a> = Vec<(Option<&'a str>, &'a Signature)>;
+        let cases: [(&str, Queries); 2] = [
+            (
+                "similar",
+                similar.iter().map(|(id, s)| (id.as_deref(), s)).collect(),
+            ),
+            (
+                "held-out",
+                held_out.iter().map(|(_, s)| (None, s)).collect(),
+            ),
+        ];
+        for (what, queries) in cases {
+            let (mut ms, mut exact) = (Vec::new(), 0);
+            for (id, query) in &queries {
+                let clock = Instant::now();
+                let ranking = one_thread.install(|| {
+                    index.search_where(
+                        query,
+                        10,
+                        method,
+                        &Scope {
+                            without: *id,
+                            keep: None,
+                        },
+                    )
+                });
+                ms.push(clock.elapsed().as_secs_f64() * 1e3);
+                exact += ranking.evaluated;
+            }
+            let mean = ms.iter().sum::<f64>() / ms.len() as f64;
+            eprintln!(
+                "| {method} | {what} | {:.1} | {:.1} | {mean:.1} | {} |",
+                percentile(&mut ms, 0.5),
+                percentile(&mut ms, 0.99),
+                exact / queries.len()
+            );
+        }
+    }
+}
+
 criterion_group!(benches, emd_solve, search_100k);
-criterion_main!(benches);
+criterion_group!(real, real_signatures);
+criterion_main!(real, benches);

@@ -5,9 +5,12 @@
 //! ([`crate::similarity::lower_bound`]) is computed for all, entries are visited in order of
 //! their bound, and the visit stops once the next bound exceeds the k-th best distance found.
 //! Because the bound never exceeds the true distance, this returns exactly the top `k` of a
-//! full scan. The LFD method is ranked the same way with its own bound
-//! ([`crate::descriptor::lfd::LfdSummary`]), and the hybrid with the weighted sum of its
-//! parts' bounds ([`fuse`]).
+//! full scan. The LFD method and the hybrid (with the weighted sum of its parts' bounds,
+//! [`fuse`]) filter first ([`Index::cascade`]): a cheap bound over every entry (the LFD's
+//! [`crate::descriptor::lfd::LfdSketch`], the ECC's centroid in single precision) against the
+//! k-th distance among the entries it ranks first, then the tighter bounds for the few left.
+//! Entries are kept by column in chunks ([`columns`]), so that the pass over all of them
+//! streams through memory.
 
 use std::fmt;
 use std::str::FromStr;
@@ -16,12 +19,16 @@ use std::sync::Arc;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use crate::descriptor::geodesic::Cumulative;
-use crate::descriptor::lfd::LfdSummary;
-use crate::descriptor::{GeodesicDescriptor, LightFieldDescriptor};
+use crate::descriptor::{histogram_l1, GeodesicDescriptor};
 use crate::params::{HybridParams, SimilarityParams};
 use crate::signature::Signature;
-use crate::similarity::{compare, compare_costs, d2_distance, lower_bound, CostMatrix, Summary};
+use crate::similarity::{
+    centroid_bound, compare, compare_costs, d2_distance, lower_bound, CostMatrix, Summary,
+};
+
+mod columns;
+
+use columns::{Columns, Entry, Row};
 
 /// How two models are compared.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize, Default)]
@@ -127,6 +134,20 @@ pub fn fuse(h: &HybridParams, parts: [Option<f64>; 4]) -> f64 {
     terms.into_iter().flatten().sum()
 }
 
+/// The largest value of part `k` for which [`fuse`] of `parts` with part `k` present stays
+/// within `kth`, with a margin for rounding: a cutoff for computing that part that never
+/// rejects an entry the sum itself would keep (the caller still compares the sum).
+fn part_limit(h: &HybridParams, mut parts: [Option<f64>; 4], k: usize, kth: f64) -> f64 {
+    parts[k] = Some(0.0);
+    let base = fuse(h, parts);
+    parts[k] = Some(1.0);
+    let slope = fuse(h, parts) - base;
+    if slope <= 0.0 || !kth.is_finite() {
+        return f64::INFINITY;
+    }
+    (kth - base) / slope * (1.0 + 1e-9) + 1e-12
+}
+
 /// Each part's term of [`fuse`]'s sum ([`PARTS`]), `None` for a part left out: what a
 /// result's explanation shows.
 pub fn contributions(h: &HybridParams, parts: [Option<f64>; 4]) -> [Option<f64>; 4] {
@@ -185,6 +206,15 @@ impl Method {
     }
 }
 
+/// The entries a ranking considers: every entry but `without` (the model that `similar` asks
+/// about, found once by id rather than compared with every entry's) that `keep` accepts (a
+/// tag filter; every entry when `None`).
+#[derive(Clone, Copy, Default)]
+pub struct Scope<'a> {
+    pub without: Option<&'a str>,
+    pub keep: Option<&'a (dyn Fn(&str) -> bool + Sync)>,
+}
+
 /// One ranked result.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Hit {
@@ -210,19 +240,8 @@ pub struct Ranking {
 #[derive(Debug, Clone)]
 pub struct Index {
     params: SimilarityParams,
-    entries: Vec<Arc<Entry>>,
+    entries: Columns,
     position: imbl::HashMap<Arc<str>, usize>,
-}
-
-#[derive(Debug)]
-struct Entry {
-    id: Arc<str>,
-    signature: Arc<Signature>,
-    summary: Summary,
-    /// The LFD bound's side of this model and the geodesic descriptor as it is compared, kept
-    /// beside the entry: both run for every entry of a hybrid ranking.
-    lfd: Option<LfdSummary>,
-    geodesic: Option<Cumulative>,
 }
 
 /// Entries whose exact distances are computed together (in parallel) between bound checks.
@@ -235,30 +254,19 @@ impl Index {
     pub fn new(params: SimilarityParams) -> Self {
         Self {
             params,
-            entries: Vec::new(),
+            entries: Columns::default(),
             position: imbl::HashMap::new(),
         }
     }
 
     /// Adds an entry, replacing one with the same id.
     pub fn insert(&mut self, id: impl Into<Arc<str>>, signature: impl Into<Arc<Signature>>) {
-        let (id, signature) = (id.into(), signature.into());
-        let summary = Summary::of(&signature, &self.params);
-        let entry = Arc::new(Entry {
-            id: id.clone(),
-            lfd: signature.lfd.as_ref().map(LightFieldDescriptor::summary),
-            geodesic: signature
-                .geodesic
-                .as_ref()
-                .map(GeodesicDescriptor::cumulative),
-            signature,
-            summary,
-        });
-        match self.position.get(&id) {
-            Some(&i) => self.entries[i] = entry,
+        let row = Row::new(id.into(), signature.into(), &self.params);
+        match self.position.get(row.id()) {
+            Some(&i) => self.entries.set(i, row),
             None => {
-                self.position.insert(id, self.entries.len());
-                self.entries.push(entry);
+                self.position.insert(row.id().clone(), self.entries.len());
+                self.entries.push(row);
             }
         }
     }
@@ -268,16 +276,17 @@ impl Index {
         let Some(i) = self.position.remove(id) else {
             return false;
         };
-        self.entries.swap_remove(i);
-        if let Some(moved) = self.entries.get(i) {
-            self.position.insert(moved.id.clone(), i);
+        if let Some(moved) = self.entries.swap_remove(i) {
+            self.position.insert(moved, i);
         }
         true
     }
 
     /// The signature stored under `id`.
     pub fn get(&self, id: &str) -> Option<&Arc<Signature>> {
-        self.position.get(id).map(|&i| &self.entries[i].signature)
+        self.position
+            .get(id)
+            .map(|&i| self.entries.get(i).signature())
     }
 
     /// The parameters the index compares with.
@@ -290,50 +299,56 @@ impl Index {
     }
 
     pub fn is_empty(&self) -> bool {
-        self.entries.is_empty()
+        self.entries.len() == 0
     }
 
     /// The `k` entries nearest to `query`, nearest first, ties by id.
     pub fn search(&self, query: &Signature, k: usize, method: Method) -> Ranking {
-        self.search_where(query, k, method, &|_| true)
+        self.search_where(query, k, method, &Scope::default())
     }
 
-    /// [`Index::search`] over the entries whose id `keep` accepts (a tag filter, or "not the
-    /// query itself"). Entries left out count neither as evaluated nor as pruned.
+    /// Whether an entry is in `scope`.
+    fn admits<'s>(&'s self, scope: &'s Scope<'s>) -> impl Fn(Entry) -> bool + Sync + 's {
+        let without = scope.without.and_then(|id| self.position.get(id).copied());
+        move |e: Entry| Some(e.number()) != without && scope.keep.is_none_or(|keep| keep(e.id()))
+    }
+
+    /// [`Index::search`] over the entries in `scope`. Entries left out count neither as
+    /// evaluated nor as pruned.
     pub fn search_where(
         &self,
         query: &Signature,
         k: usize,
         method: Method,
-        keep: &(dyn Fn(&str) -> bool + Sync),
+        scope: &Scope,
     ) -> Ranking {
         match method {
-            Method::Hybrid => self.search_hybrid(query, k, keep),
-            Method::Ecc => self.search_ecc(query, k, keep),
-            Method::Lfd => self.search_lfd(query, k, keep),
+            Method::Hybrid => self.search_hybrid(query, k, scope),
+            Method::Ecc => self.search_ecc(query, k, scope),
+            Method::Lfd => self.search_lfd(query, k, scope),
             // A histogram distance costs less than any bound would.
-            Method::D2 | Method::Geodesic => self.exhaustive(query, k, method, &self.params, keep),
+            Method::D2 | Method::Geodesic => self.exhaustive(query, k, method, &self.params, scope),
         }
     }
 
-    /// Entries `keep` accepts that `method` cannot compare (see [`Method::comparable`]): they
+    /// Entries in `scope` that `method` cannot compare (see [`Method::comparable`]): they
     /// are left out of its rankings until re-extracted, and responses say how many.
-    pub fn incomparable(&self, method: Method, keep: &(dyn Fn(&str) -> bool + Sync)) -> usize {
+    pub fn incomparable(&self, method: Method, scope: &Scope) -> usize {
+        let admits = self.admits(scope);
         self.entries
             .iter()
-            .filter(|e| !method.comparable(&e.signature) && keep(&e.id))
+            .filter(|&e| !e.comparable(method) && admits(e))
             .count()
     }
 
-    /// Entries `keep` accepts that `method` ranks on part of its distance only (see
+    /// Entries in `scope` that `method` ranks on part of its distance only (see
     /// [`Method::complete`]); they are re-extracted in the background, and responses say how
     /// many.
-    pub fn partial(&self, method: Method, keep: &(dyn Fn(&str) -> bool + Sync)) -> usize {
+    pub fn partial(&self, method: Method, scope: &Scope) -> usize {
+        let admits = self.admits(scope);
         self.entries
             .iter()
-            .filter(|e| {
-                method.comparable(&e.signature) && !method.complete(&e.signature) && keep(&e.id)
-            })
+            .filter(|&e| e.comparable(method) && !e.complete(method) && admits(e))
             .count()
     }
 
@@ -346,18 +361,18 @@ impl Index {
         k: usize,
         method: Method,
         params: &SimilarityParams,
-        keep: &(dyn Fn(&str) -> bool + Sync),
+        scope: &Scope,
     ) -> Ranking {
         if matches!(method, Method::D2 | Method::Lfd | Method::Geodesic) || *params == self.params {
-            return self.search_where(query, k, method, keep);
+            return self.search_where(query, k, method, scope);
         }
-        self.exhaustive(query, k, method, params, keep)
+        self.exhaustive(query, k, method, params, scope)
     }
 
     /// Every entry's exact distance, no pruning: the reference the pruned search must match.
     /// Entries the method cannot compare (see [`Method::comparable`]) are left out.
     pub fn search_exhaustive(&self, query: &Signature, k: usize, method: Method) -> Ranking {
-        self.exhaustive(query, k, method, &self.params, &|_| true)
+        self.exhaustive(query, k, method, &self.params, &Scope::default())
     }
 
     fn exhaustive(
@@ -366,14 +381,22 @@ impl Index {
         k: usize,
         method: Method,
         params: &SimilarityParams,
-        keep: &(dyn Fn(&str) -> bool + Sync),
+        scope: &Scope,
     ) -> Ranking {
+        // D2 and geodesic rankings visit every entry: they read what the index keeps beside
+        // the signature.
+        let query_geodesic = query.geodesic.as_ref().map(GeodesicDescriptor::cumulative);
+        let distance = |e: Entry| match (method, &query_geodesic, e.geodesic()) {
+            (Method::D2, _, _) => histogram_l1(&query.d2, e.d2()),
+            (Method::Geodesic, Some(q), Some(g)) => q.distance(g),
+            _ => distance(method, query, e.signature(), params),
+        };
+        let admits = self.admits(scope);
         let mut scored: Vec<(f64, usize)> = self
             .entries
-            .par_iter()
-            .enumerate()
-            .filter(|(_, e)| keep(&e.id) && method.comparable(&e.signature))
-            .map(|(i, e)| (distance(method, query, &e.signature, params), i))
+            .par_entries()
+            .filter(|&e| admits(e) && e.comparable(method))
+            .map(|e| (distance(e), e.number()))
             .collect();
         let evaluated = scored.len();
         let top = self.smallest(&mut scored, k);
@@ -381,7 +404,7 @@ impl Index {
             hits: top
                 .iter()
                 .map(|&(distance, i)| Hit {
-                    id: self.entries[i].id.to_string(),
+                    id: self.entries.get(i).id().to_string(),
                     distance,
                 })
                 .collect(),
@@ -392,20 +415,15 @@ impl Index {
 
     /// SPEC §5 ranking with the ECC bounds: the centroid/projection bound for every entry,
     /// then the relaxed-EMD bound from the cost matrix, which the exact EMD reuses.
-    fn search_ecc(
-        &self,
-        query: &Signature,
-        k: usize,
-        keep: &(dyn Fn(&str) -> bool + Sync),
-    ) -> Ranking {
+    fn search_ecc(&self, query: &Signature, k: usize, scope: &Scope) -> Ranking {
         let params = &self.params;
         let summary = Summary::of(query, params);
         self.pruned(
             k,
-            |e| keep(&e.id),
-            |e| lower_bound(&summary, &e.summary, params),
+            self.admits(scope),
+            |e| lower_bound(&summary, e.summary(), params),
             |e, kth| {
-                let costs = CostMatrix::new(query, &e.signature, params);
+                let costs = CostMatrix::new(query, e.signature(), params);
                 (costs.relaxed_bound(params) <= kth).then(|| compare_costs(&costs, params).sim)
             },
         )
@@ -413,68 +431,124 @@ impl Index {
 
     /// The hybrid's ranking: each entry's bound is the fused bounds of its parts (the ECC's
     /// centroid/projection bound, the exact D2 and geodesic distances, which cost less than a
-    /// bound, and the LFD's bound); an entry past the bound is rejected by the fused
-    /// relaxed-EMD bound before its EMD is solved.
-    fn search_hybrid(
-        &self,
-        query: &Signature,
-        k: usize,
-        keep: &(dyn Fn(&str) -> bool + Sync),
-    ) -> Ranking {
+    /// bound, and the LFD's bound), coarse then fine ([`Index::cascade`]); an entry past the
+    /// bound is rejected by the fused relaxed-EMD bound before its EMD is solved, and its LFD
+    /// distance stops at the most the k-th distance leaves it ([`part_limit`]).
+    fn search_hybrid(&self, query: &Signature, k: usize, scope: &Scope) -> Ranking {
         let h = &self.params.hybrid;
         // The summaries depend on `W` only, which the hybrid's ECC part shares.
         let params = &self.params.hybrid_ecc();
         let summary = Summary::of(query, params);
-        let lfd_summary = query.lfd.as_ref().map(|d| d.summary());
-        let lfd_bound = |e: &Entry| match (&lfd_summary, &e.lfd) {
-            (Some(q), Some(s)) if h.lfd.weight > 0.0 => Some(q.lower_bound(s)),
+        let lfd_query = query.lfd.as_ref().map(|d| (d.sketch(), d.summary()));
+        let lfd_sketch = |e: Entry| match (&lfd_query, e.sketch()) {
+            (Some((q, _)), Some(s)) if h.lfd.weight > 0.0 => Some(q.lower_bound(s)),
             _ => None,
         };
+        let lfd_bound = |e: Entry| match (&lfd_query, e.lfd()) {
+            (Some((_, q)), Some(s)) if h.lfd.weight > 0.0 => Some(q.lower_bound(s)),
+            _ => None,
+        };
+        // `None` past `cutoff`.
+        let lfd_exact = |e: Entry, cutoff: f64| {
+            let (query, (_, ours)) = query.lfd.as_ref().zip(lfd_query.as_ref())?;
+            let theirs = e.lfd()?;
+            query.distance_with(ours, e.signature().lfd.as_ref()?, theirs, cutoff)
+        };
         // Left out (as `fuse` would leave it) when it weighs nothing, as in the defaults.
-        let d2 = |e: &Entry| (h.d2.weight > 0.0).then(|| d2_distance(query, &e.signature));
+        let d2 = |e: Entry| (h.d2.weight > 0.0).then(|| histogram_l1(&query.d2, e.d2()));
         let query_geodesic = query.geodesic.as_ref().map(GeodesicDescriptor::cumulative);
-        let geodesic = |e: &Entry| Some(query_geodesic.as_ref()?.distance(e.geodesic.as_ref()?));
+        let geodesic = |e: Entry| Some(query_geodesic.as_ref()?.distance(e.geodesic()?));
         // From the entry's summary, not its signature: this runs for every entry, and the
         // signature is another cache miss away.
-        let with_ecc = |e: &Entry| {
-            h.ecc.weight > 0.0 && !query.features.is_empty() && e.summary.features() > 0
+        let with_ecc = |e: Entry| {
+            h.ecc.weight > 0.0 && !query.features.is_empty() && e.summary().features() > 0
+        };
+        // The first pass, over every entry, takes the cheap halves of the bounds: the ECC's
+        // centroid bound in single precision and the LFD's sketch.
+        let centroid = summary.centroid();
+        let centroid = (&centroid.0[..], &centroid.1[..], summary.features());
+        let coarse = |e: Entry| {
+            let ecc = with_ecc(e).then(|| centroid_bound(centroid, e.centroid(), params));
+            fuse(h, [ecc, d2(e), lfd_sketch(e), geodesic(e)])
+        };
+        let fine = |e: Entry| {
+            let ecc = with_ecc(e).then(|| lower_bound(&summary, e.summary(), params));
+            fuse(h, [ecc, d2(e), lfd_bound(e), geodesic(e)])
         };
         // Cheapest first: the relaxed EMD with the LFD's bound, then with its distance
         // (~50 µs), and only then the EMD itself.
-        let exact = |e: &Entry, kth: f64| {
+        let exact = |e: Entry, kth: f64| {
             let (d2, geodesic) = (d2(e), geodesic(e));
-            let costs = with_ecc(e).then(|| CostMatrix::new(query, &e.signature, params));
+            let costs = with_ecc(e).then(|| CostMatrix::new(query, e.signature(), params));
             let relaxed = costs.as_ref().map(|c| c.relaxed_bound(params));
             if fuse(h, [relaxed, d2, lfd_bound(e), geodesic]) > kth {
                 return None;
             }
-            let lfd = hybrid_lfd(h, query, &e.signature);
+            let lfd = match lfd_bound(e) {
+                // The LFD distance stops early past the most it may be within the k-th.
+                Some(_) => {
+                    let cutoff = part_limit(h, [relaxed, d2, None, geodesic], 2, kth);
+                    Some(lfd_exact(e, cutoff)?)
+                }
+                None => None,
+            };
             if fuse(h, [relaxed, d2, lfd, geodesic]) > kth {
                 return None;
             }
             let ecc = costs.map(|c| compare_costs(&c, params).sim);
             Some(fuse(h, [ecc, d2, lfd, geodesic]))
         };
+        self.cascade(k, self.admits(scope), coarse, fine, exact)
+    }
 
-        // The ECC bound costs about as much as the other parts' together, so it is computed
-        // only for entries that a coarse bound (the ECC part at 0, which `fuse` keeps a lower
-        // bound) does not reject against the k-th distance among the k entries of least
-        // coarse bound: a real k-th distance, so never below the true one.
-        let coarse = |e: &Entry| {
-            let ecc = with_ecc(e).then_some(0.0);
-            fuse(h, [ecc, d2(e), lfd_bound(e), geodesic(e)])
+    /// Light field ranking with [`crate::descriptor::lfd::LfdSummary::lower_bound`]; entries without a descriptor are
+    /// left out (see [`Method::comparable`]), and a query without one ranks nothing.
+    fn search_lfd(&self, query: &Signature, k: usize, scope: &Scope) -> Ranking {
+        let Some(query) = &query.lfd else {
+            // Nothing to compare with: no entry is ranked (callers check `comparable`).
+            return Ranking {
+                hits: Vec::new(),
+                evaluated: 0,
+                pruned: 0,
+            };
         };
+        let (sketch, summary) = (query.sketch(), query.summary());
+        const KEPT: &str = "kept entries have one";
+        let admits = self.admits(scope);
+        self.cascade(
+            k,
+            |e| admits(e) && e.comparable(Method::Lfd),
+            |e| sketch.lower_bound(e.sketch().expect(KEPT)),
+            |e| summary.lower_bound(e.lfd().expect(KEPT)),
+            |e, kth| {
+                let descriptor = e.signature().lfd.as_ref().expect(KEPT);
+                query.distance_with(&summary, descriptor, e.lfd().expect(KEPT), kth)
+            },
+        )
+    }
+
+    /// [`Index::pruned`] with two bounds: `coarse`, cheap, for every entry `keep` accepts;
+    /// the exact distances of the `k` entries of least coarse bound, a real k-th distance and
+    /// so never below the true one, reject most entries; `fine`, tighter and costlier, orders
+    /// the others for the visit. The result equals a full scan's.
+    fn cascade(
+        &self,
+        k: usize,
+        keep: impl Fn(Entry) -> bool + Sync,
+        coarse: impl Fn(Entry) -> f64 + Sync,
+        fine: impl Fn(Entry) -> f64 + Sync,
+        exact: impl Fn(Entry, f64) -> Option<f64> + Sync,
+    ) -> Ranking {
         let mut coarse_order: Vec<(f64, usize)> = self
             .entries
-            .par_iter()
-            .enumerate()
-            .filter(|(_, e)| keep(&e.id))
-            .map(|(i, e)| (coarse(e), i))
+            .par_entries()
+            .filter(|&e| keep(e))
+            .map(|e| (coarse(e), e.number()))
             .collect();
         let mut seeds: Vec<f64> = self
             .smallest(&mut coarse_order, k)
             .par_iter()
-            .filter_map(|&(_, i)| exact(&self.entries[i], f64::INFINITY))
+            .filter_map(|&(_, i)| exact(self.entries.get(i), f64::INFINITY))
             .collect();
         seeds.sort_by(f64::total_cmp);
         let kth = seeds
@@ -484,42 +558,10 @@ impl Index {
         let order: Vec<(f64, usize)> = coarse_order
             .par_iter()
             .filter(|(bound, _)| *bound <= kth)
-            .map(|&(_, i)| {
-                let e = &self.entries[i];
-                let ecc = with_ecc(e).then(|| lower_bound(&summary, &e.summary, params));
-                (fuse(h, [ecc, d2(e), lfd_bound(e), geodesic(e)]), i)
-            })
+            .map(|&(bound, i)| (fine(self.entries.get(i)).max(bound), i))
             .collect();
         let rejected = coarse_order.len() - order.len();
         self.refine(k, order, rejected, exact)
-    }
-
-    /// Light field ranking with [`crate::descriptor::lfd::LfdSummary::lower_bound`]; entries without a descriptor are
-    /// left out (see [`Method::comparable`]), and a query without one ranks nothing.
-    fn search_lfd(
-        &self,
-        query: &Signature,
-        k: usize,
-        keep: &(dyn Fn(&str) -> bool + Sync),
-    ) -> Ranking {
-        let Some(query) = &query.lfd else {
-            // Nothing to compare with: no entry is ranked (callers check `comparable`).
-            return Ranking {
-                hits: Vec::new(),
-                evaluated: 0,
-                pruned: 0,
-            };
-        };
-        let summary = query.summary();
-        fn descriptor(e: &Entry) -> &LightFieldDescriptor {
-            e.signature.lfd.as_ref().expect("kept entries have one")
-        }
-        self.pruned(
-            k,
-            |e| keep(&e.id) && e.lfd.is_some(),
-            |e| summary.lower_bound(e.lfd.as_ref().expect("kept entries have one")),
-            |e, _| Some(query.distance(descriptor(e))),
-        )
     }
 
     /// Top `k` of the entries `keep` accepts, visiting them in order of `bound` (a lower bound
@@ -529,16 +571,15 @@ impl Index {
     fn pruned(
         &self,
         k: usize,
-        keep: impl Fn(&Entry) -> bool + Sync,
-        bound: impl Fn(&Entry) -> f64 + Sync,
-        exact: impl Fn(&Entry, f64) -> Option<f64> + Sync,
+        keep: impl Fn(Entry) -> bool + Sync,
+        bound: impl Fn(Entry) -> f64 + Sync,
+        exact: impl Fn(Entry, f64) -> Option<f64> + Sync,
     ) -> Ranking {
         let order: Vec<(f64, usize)> = self
             .entries
-            .par_iter()
-            .enumerate()
-            .filter(|(_, e)| keep(e))
-            .map(|(i, e)| (bound(e), i))
+            .par_entries()
+            .filter(|&e| keep(e))
+            .map(|e| (bound(e), e.number()))
             .collect();
         self.refine(k, order, 0, exact)
     }
@@ -550,7 +591,7 @@ impl Index {
         k: usize,
         mut order: Vec<(f64, usize)>,
         rejected: usize,
-        exact: impl Fn(&Entry, f64) -> Option<f64> + Sync,
+        exact: impl Fn(Entry, f64) -> Option<f64> + Sync,
     ) -> Ranking {
         if k == 0 {
             return Ranking {
@@ -587,9 +628,9 @@ impl Index {
             let solved: Vec<Hit> = live
                 .par_iter()
                 .filter_map(|&i| {
-                    let entry = &self.entries[i];
+                    let entry = self.entries.get(i);
                     exact(entry, kth).map(|distance| Hit {
-                        id: entry.id.to_string(),
+                        id: entry.id().to_string(),
                         distance,
                     })
                 })
@@ -614,7 +655,7 @@ impl Index {
     fn smallest<'a>(&self, scored: &'a mut [(f64, usize)], k: usize) -> &'a [(f64, usize)] {
         let order = |a: &(f64, usize), b: &(f64, usize)| {
             a.0.total_cmp(&b.0)
-                .then_with(|| self.entries[a.1].id.cmp(&self.entries[b.1].id))
+                .then_with(|| self.entries.get(a.1).id().cmp(self.entries.get(b.1).id()))
         };
         let k = k.min(scored.len());
         if k < scored.len() && k > 0 {

@@ -196,6 +196,44 @@ impl Summary {
     }
 }
 
+impl Summary {
+    /// The feature means, ECC then region D2, in single precision: the part of
+    /// [`lower_bound`] a first pass over every entry can afford ([`centroid_bound`]).
+    pub fn centroid(&self) -> (Vec<f32>, Vec<f32>) {
+        let single = |v: &[f64]| v.iter().map(|&x| x as f32).collect();
+        (single(self.ecc_mean()), single(self.d2_mean()))
+    }
+}
+
+/// Absolute slack of [`centroid_bound`] for its single-precision means: each mean is off by
+/// at most ~6e-8 of its value (ECC values are a few radians, D2 bins at most 1), so 64 bins
+/// and 10 waves of such errors stay far below it.
+const CENTROID_SLACK: f64 = 1e-5;
+
+/// The centroid half of [`lower_bound`] from single-precision means (`(ecc, d2)` of
+/// [`Summary::centroid`]) and feature counts, less [`CENTROID_SLACK`], so never above it.
+pub fn centroid_bound(
+    p: (&[f32], &[f32], usize),
+    q: (&[f32], &[f32], usize),
+    params: &SimilarityParams,
+) -> f64 {
+    let w = params.ecc_weight;
+    let ecc =
+        p.0.iter()
+            .zip(q.0)
+            .map(|(&a, &b)| (a - b) * (a - b))
+            .sum::<f32>() as f64;
+    let ecc = (ecc / p.0.len().max(1) as f64).sqrt();
+    let d2 =
+        p.1.iter()
+            .zip(q.1)
+            .map(|(&a, &b)| (a - b).abs())
+            .sum::<f32>() as f64
+            / 2.0;
+    let centroid = w * ecc + (1.0 - w) * d2 - CENTROID_SLACK;
+    penalty(p.2, q.2, params) * centroid.max(0.0)
+}
+
 /// Scalar projections of a feature, each 1-Lipschitz for the ground distance before its weight
 /// is applied: `|u·Δα| ≤ ‖Δα‖₂` for a unit `u` (scaled by `1/√N` like `d_ECC`), and
 /// `½|c·Δh| ≤ ½‖Δh‖₁` for `|c_k| ≤ 1`. Mean ECC, ECC slope across the waves, and mean D2 distance

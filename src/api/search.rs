@@ -14,7 +14,7 @@ use super::AppState;
 use crate::model::ModelId;
 use crate::params::SimilarityParams;
 use crate::pipeline::Extent;
-use crate::rank::{contributions, distance, hybrid_parts, Method, Ranking, PARTS};
+use crate::rank::{contributions, distance, hybrid_parts, Method, Ranking, Scope, PARTS};
 use crate::signature::Signature;
 use crate::similarity::explain;
 
@@ -211,19 +211,23 @@ async fn rank(
     let tag = q.tag.clone();
     let results = app
         .read_catalog(move |catalog| {
-            let keep = |id: &str| {
-                exclude.as_ref().is_none_or(|e| e.as_str() != id)
-                    && tag
-                        .as_ref()
-                        .is_none_or(|t| catalog.records.get(id).is_some_and(|r| r.tags.contains(t)))
+            let tagged = |id: &str| {
+                tag.as_ref()
+                    .is_none_or(|t| catalog.records.get(id).is_some_and(|r| r.tags.contains(t)))
+            };
+            let scope = Scope {
+                without: exclude.as_ref().map(ModelId::as_str),
+                keep: tag.is_some().then_some(&tagged as _),
             };
             let Ranking {
                 hits,
                 evaluated,
                 pruned,
-            } = catalog.index.search_with(&query, k, method, &params, &keep);
-            let left_out = catalog.index.incomparable(method, &keep);
-            let partial = catalog.index.partial(method, &keep);
+            } = catalog
+                .index
+                .search_with(&query, k, method, &params, &scope);
+            let left_out = catalog.index.incomparable(method, &scope);
+            let partial = catalog.index.partial(method, &scope);
             let results = hits
                 .into_iter()
                 .enumerate()

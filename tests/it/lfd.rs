@@ -259,7 +259,17 @@ fn a_rotated_copy_is_near_and_other_shapes_are_far() {
         // The ranking bound never exceeds the distance, and is not trivially 0 between shapes.
         for other in descriptors.iter().chain([&copy]) {
             let bound = d.summary().lower_bound(&other.summary());
-            assert!(bound <= d.distance(other), "{name}");
+            let distance = d.distance(other);
+            assert!(bound <= distance, "{name}");
+            // The sketch, coarser, is never above the summary's bound.
+            assert!(d.sketch().lower_bound(&other.sketch()) <= bound, "{name}");
+            // With the summaries given, the same distance, or `None` just past a cutoff.
+            let with = |cutoff| d.distance_with(&d.summary(), other, &other.summary(), cutoff);
+            assert_eq!(with(f64::INFINITY), Some(distance), "{name}");
+            assert_eq!(with(distance), Some(distance), "{name}");
+            if distance > 0.0 {
+                assert_eq!(with(distance * (1.0 - 1e-9)), None, "{name}");
+            }
             if other != d && other != &copy {
                 assert!(
                     bound > 0.2 * d.distance(other),

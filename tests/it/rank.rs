@@ -5,8 +5,8 @@ use crate::shapes;
 use crate::synthetic;
 
 use salient::params::{HybridParams, Term};
-use salient::rank::{distance, fuse, Index, Method};
-use salient::similarity::{d2_distance, lower_bound, Summary};
+use salient::rank::{distance, fuse, Index, Method, Scope};
+use salient::similarity::{centroid_bound, d2_distance, lower_bound, Summary};
 use salient::{Params, Signature};
 
 #[test]
@@ -182,6 +182,15 @@ fn hybrid_is_the_weighted_sum_of_its_parts_and_its_bound_never_exceeds_it() {
                 ],
             );
             assert!(bound <= hybrid + 1e-12, "{a}–{b}: bound {bound} > {hybrid}");
+            // The first pass's single-precision centroid bound is never above the full one.
+            let (summary_a, summary_b) = (Summary::of(sa, p), Summary::of(sb, p));
+            let (ca, cb) = (summary_a.centroid(), summary_b.centroid());
+            let coarse = centroid_bound(
+                (&ca.0, &ca.1, summary_a.features()),
+                (&cb.0, &cb.1, summary_b.features()),
+                p,
+            );
+            assert!(coarse <= lower_bound(&summary_a, &summary_b, p), "{a}–{b}");
 
             let mut old = sb.clone();
             old.lfd = None;
@@ -279,7 +288,7 @@ fn hybrid_pruning_never_changes_the_top_k() {
             index.insert(id.clone(), s.clone());
         }
         assert_eq!(
-            index.partial(Method::Hybrid, &|_| true),
+            index.partial(Method::Hybrid, &Scope::default()),
             1000usize.div_ceil(17)
         );
         for (_, query) in &queries {
@@ -304,4 +313,60 @@ fn hybrid_defaults_are_the_tuned_setting() {
         std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("docs/results/tune/params.json");
     let tuned: Params = serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap();
     assert_eq!(tuned.similarity.hybrid, HybridParams::default());
+}
+
+/// The index keeps its entries by column in chunks of 1 024: inserting, replacing and removing
+/// across chunk boundaries keeps every entry findable and every ranking equal to a full scan,
+/// and a scope leaves out the model asked about and what its filter refuses.
+#[test]
+fn entries_survive_changes_across_chunks() {
+    let mut collection = synthetic::collection(2600, 30, 8);
+    synthetic::with_descriptors(&mut collection, 30, 9);
+    let mut index = Index::new(Params::default().similarity);
+    for (id, s) in &collection {
+        index.insert(id.clone(), s.clone());
+    }
+    // Removed: the first, the last, and a run across the first chunk boundary.
+    let removed: Vec<&str> = [0, collection.len() - 1]
+        .into_iter()
+        .chain(1000..1060)
+        .map(|i| collection[i].0.as_str())
+        .collect();
+    for id in &removed {
+        assert!(index.remove(id));
+        assert!(!index.remove(id), "{id} removed once");
+    }
+    // Replaced: an entry of the last chunk takes another's signature.
+    let (replaced, with) = (&collection[2100].0, &collection[6].1);
+    index.insert(replaced.clone(), with.clone());
+    assert_eq!(index.len(), collection.len() - removed.len());
+    for (id, s) in &collection {
+        match index.get(id) {
+            Some(kept) if id == replaced => assert_eq!(**kept, *with),
+            Some(kept) => assert_eq!(**kept, *s, "{id}"),
+            None => assert!(removed.contains(&id.as_str()), "{id} lost"),
+        }
+    }
+    let query = &collection[6].1;
+    for method in Method::ALL {
+        let fast = index.search(query, 10, method);
+        let full = index.search_exhaustive(query, 10, method);
+        assert_eq!(fast.hits, full.hits, "{method}");
+    }
+    // `similar` of model 6 leaves it out, not its copy under another id.
+    let even = |id: &str| id.ends_with(['0', '2', '4', '6', '8']);
+    let asked = collection[6].0.as_str();
+    let scope = Scope {
+        without: Some(asked),
+        keep: Some(&even),
+    };
+    let ranking = index.search_where(query, 10, Method::Hybrid, &scope);
+    assert_eq!(ranking.hits[0].id, *replaced);
+    assert_eq!(ranking.hits[0].distance, 0.0);
+    assert!(ranking.hits.iter().all(|h| even(&h.id) && h.id != asked));
+    let in_scope = collection
+        .iter()
+        .filter(|(id, _)| even(id) && id != asked && !removed.contains(&id.as_str()))
+        .count();
+    assert_eq!(ranking.evaluated + ranking.pruned, in_scope);
 }
