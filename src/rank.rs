@@ -1,16 +1,16 @@
 //! Ranking a collection against a query (SPEC §5): every entry by distance ascending, ties
 //! broken by id, the top `k` returned.
 //!
-//! For the ECC method most entries never need their EMD solved: the centroid lower bound
-//! ([`crate::similarity::lower_bound`]) is computed for all, entries are visited in order of
-//! their bound, and the visit stops once the next bound exceeds the k-th best distance found.
-//! Because the bound never exceeds the true distance, this returns exactly the top `k` of a
-//! full scan. The LFD method and the hybrid (with the weighted sum of its parts' bounds,
-//! [`fuse`]) filter first ([`Index::cascade`]): a cheap bound over every entry (the LFD's
-//! [`crate::descriptor::lfd::LfdSketch`], the ECC's centroid in single precision) against the
-//! k-th distance among the entries it ranks first, then the tighter bounds for the few left.
-//! Entries are kept by column in chunks ([`columns`]), so that the pass over all of them
-//! streams through memory.
+//! Most entries never need their exact distance: entries are visited in order of a lower
+//! bound (for the ECC method the centroid/projection bound of
+//! [`crate::similarity::lower_bound`]), and the visit stops once the next bound exceeds the
+//! k-th best distance found. Because a bound never exceeds the true distance, this returns
+//! exactly the top `k` of a full scan. A cheaper bound filters first ([`Index::cascade`]):
+//! computed for every entry (the ECC's centroid in single precision, the LFD's
+//! [`crate::descriptor::lfd::LfdSketch`]) and compared with the k-th distance among the
+//! entries it ranks first, it leaves the tighter bounds to a few. The hybrid's bounds are the
+//! weighted sums of its parts' ([`fuse`]). Entries are kept by column in chunks ([`columns`]),
+//! so that a pass over all of them streams through memory.
 
 use std::fmt;
 use std::str::FromStr;
@@ -418,10 +418,13 @@ impl Index {
     fn search_ecc(&self, query: &Signature, k: usize, scope: &Scope) -> Ranking {
         let params = &self.params;
         let summary = Summary::of(query, params);
-        self.pruned(
+        let centroid = summary.centroid();
+        let centroid = (&centroid.0[..], &centroid.1[..], summary.features());
+        self.cascade(
             k,
             self.admits(scope),
-            |e| lower_bound(&summary, e.summary(), params),
+            |e| centroid_bound(centroid, e.centroid(), params),
+            |e, _| Some(lower_bound(&summary, e.summary(), params)),
             |e, kth| {
                 let costs = CostMatrix::new(query, e.signature(), params);
                 (costs.relaxed_bound(params) <= kth).then(|| compare_costs(&costs, params).sim)
@@ -471,9 +474,15 @@ impl Index {
             let ecc = with_ecc(e).then(|| centroid_bound(centroid, e.centroid(), params));
             fuse(h, [ecc, d2(e), lfd_sketch(e), geodesic(e)])
         };
-        let fine = |e: Entry| {
+        // The LFD's summary bound first: it rejects most entries before the ECC's bound.
+        let fine = |e: Entry, kth: f64| {
+            let (d2, lfd, geodesic) = (d2(e), lfd_bound(e), geodesic(e));
+            let ecc = with_ecc(e).then(|| centroid_bound(centroid, e.centroid(), params));
+            if fuse(h, [ecc, d2, lfd, geodesic]) > kth {
+                return None;
+            }
             let ecc = with_ecc(e).then(|| lower_bound(&summary, e.summary(), params));
-            fuse(h, [ecc, d2(e), lfd_bound(e), geodesic(e)])
+            Some(fuse(h, [ecc, d2, lfd, geodesic]))
         };
         // Cheapest first: the relaxed EMD with the LFD's bound, then with its distance
         // (~50 µs), and only then the EMD itself.
@@ -519,7 +528,7 @@ impl Index {
             k,
             |e| admits(e) && e.comparable(Method::Lfd),
             |e| sketch.lower_bound(e.sketch().expect(KEPT)),
-            |e| summary.lower_bound(e.lfd().expect(KEPT)),
+            |e, _| Some(summary.lower_bound(e.lfd().expect(KEPT))),
             |e, kth| {
                 let descriptor = e.signature().lfd.as_ref().expect(KEPT);
                 query.distance_with(&summary, descriptor, e.lfd().expect(KEPT), kth)
@@ -527,16 +536,17 @@ impl Index {
         )
     }
 
-    /// [`Index::pruned`] with two bounds: `coarse`, cheap, for every entry `keep` accepts;
-    /// the exact distances of the `k` entries of least coarse bound, a real k-th distance and
-    /// so never below the true one, reject most entries; `fine`, tighter and costlier, orders
-    /// the others for the visit. The result equals a full scan's.
+    /// Top `k` of the entries `keep` accepts, with two lower bounds on the distance: `coarse`,
+    /// cheap, for every entry; the exact distances of the `k` entries of least coarse bound,
+    /// a real k-th distance and so never below the true one, reject most entries;
+    /// `fine(entry, kth)`, tighter and costlier, orders the others for the visit, or is `None`
+    /// when it can tell cheaply that the entry is past `kth`. The result equals a full scan's.
     fn cascade(
         &self,
         k: usize,
         keep: impl Fn(Entry) -> bool + Sync,
         coarse: impl Fn(Entry) -> f64 + Sync,
-        fine: impl Fn(Entry) -> f64 + Sync,
+        fine: impl Fn(Entry, f64) -> Option<f64> + Sync,
         exact: impl Fn(Entry, f64) -> Option<f64> + Sync,
     ) -> Ranking {
         let mut coarse_order: Vec<(f64, usize)> = self
@@ -558,33 +568,13 @@ impl Index {
         let order: Vec<(f64, usize)> = coarse_order
             .par_iter()
             .filter(|(bound, _)| *bound <= kth)
-            .map(|&(bound, i)| (fine(self.entries.get(i)).max(bound), i))
+            .filter_map(|&(bound, i)| Some((fine(self.entries.get(i), kth)?.max(bound), i)))
             .collect();
         let rejected = coarse_order.len() - order.len();
         self.refine(k, order, rejected, exact)
     }
 
-    /// Top `k` of the entries `keep` accepts, visiting them in order of `bound` (a lower bound
-    /// on the distance) and stopping once the next bound exceeds the k-th best distance;
-    /// `exact(entry, kth)` is the distance, or `None` when it can tell cheaply that it exceeds
-    /// `kth`. The result equals a full scan's.
-    fn pruned(
-        &self,
-        k: usize,
-        keep: impl Fn(Entry) -> bool + Sync,
-        bound: impl Fn(Entry) -> f64 + Sync,
-        exact: impl Fn(Entry, f64) -> Option<f64> + Sync,
-    ) -> Ranking {
-        let order: Vec<(f64, usize)> = self
-            .entries
-            .par_entries()
-            .filter(|&e| keep(e))
-            .map(|e| (bound(e), e.number()))
-            .collect();
-        self.refine(k, order, 0, exact)
-    }
-
-    /// The visit of [`Index::pruned`]: `order` holds each candidate's lower bound and entry;
+    /// The visit of [`Index::cascade`]: `order` holds each candidate's lower bound and entry;
     /// `rejected` more entries were already rejected by a bound (they count as pruned).
     fn refine(
         &self,
