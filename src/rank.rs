@@ -178,10 +178,23 @@ impl Method {
 
     /// Whether `signature` holds what this method compares.
     pub fn comparable(self, signature: &Signature) -> bool {
+        self.compares(Holds::of(signature))
+    }
+
+    /// [`Method::comparable`] from which optional descriptors a model holds.
+    fn compares(self, holds: Holds) -> bool {
         match self {
-            Method::Lfd => signature.lfd.is_some(),
-            Method::Geodesic => signature.geodesic.is_some(),
+            Method::Lfd => holds.lfd,
+            Method::Geodesic => holds.geodesic,
             Method::Hybrid | Method::Ecc | Method::D2 => true,
+        }
+    }
+
+    /// [`Method::complete`], likewise.
+    fn completes(self, holds: Holds) -> bool {
+        match self {
+            Method::Hybrid => PARTS.iter().all(|m| m.compares(holds)),
+            _ => self.compares(holds),
         }
     }
 
@@ -199,9 +212,23 @@ impl Method {
     /// Whether `signature` holds every part this method weighs; a comparable signature
     /// that is not complete is ranked on part of the distance (see [`fuse`]).
     pub fn complete(self, signature: &Signature) -> bool {
-        match self {
-            Method::Hybrid => PARTS.iter().all(|m| m.comparable(signature)),
-            _ => self.comparable(signature),
+        self.completes(Holds::of(signature))
+    }
+}
+
+/// Which of the descriptors a signature may lack it holds: what decides whether a method can
+/// rank it, read from the signature or from the index's columns.
+#[derive(Debug, Clone, Copy)]
+struct Holds {
+    lfd: bool,
+    geodesic: bool,
+}
+
+impl Holds {
+    fn of(signature: &Signature) -> Self {
+        Self {
+            lfd: signature.lfd.is_some(),
+            geodesic: signature.geodesic.is_some(),
         }
     }
 }

@@ -18,7 +18,7 @@ use crate::params::SimilarityParams;
 use crate::signature::Signature;
 use crate::similarity::Summary;
 
-use super::{Method, PARTS};
+use super::{Holds, Method};
 
 /// Entries per chunk: a copy on write moves about a megabyte.
 const CHUNK: usize = 1024;
@@ -215,22 +215,23 @@ impl<'a> Entry<'a> {
         self.chunk.d2.get(self.slot)
     }
 
-    /// [`Method::comparable`] from the columns, which a pass over every entry should read
-    /// rather than the signature.
-    pub fn comparable(self, method: Method) -> bool {
-        match method {
-            Method::Lfd => self.sketch().is_some(),
-            Method::Geodesic => self.geodesic().is_some(),
-            Method::Hybrid | Method::Ecc | Method::D2 => true,
+    /// Which optional descriptors it holds, from the columns: a pass over every entry should
+    /// not read the signature.
+    fn holds(self) -> Holds {
+        Holds {
+            lfd: self.sketch().is_some(),
+            geodesic: self.geodesic().is_some(),
         }
     }
 
-    /// [`Method::complete`], likewise.
+    /// [`Method::comparable`] from the columns.
+    pub fn comparable(self, method: Method) -> bool {
+        method.compares(self.holds())
+    }
+
+    /// [`Method::complete`] from the columns.
     pub fn complete(self, method: Method) -> bool {
-        match method {
-            Method::Hybrid => PARTS.iter().all(|&m| self.comparable(m)),
-            _ => self.comparable(method),
-        }
+        method.completes(self.holds())
     }
 }
 
