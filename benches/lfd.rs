@@ -103,7 +103,7 @@ fn search_100k(c: &mut Criterion) {
         .enumerate()
     {
         signature.lfd = Some(perturbed(&real[i % real.len()], 6, &mut rng));
-        index.insert(id, signature);
+        index.insert(id, &signature);
     }
     let queries: Vec<_> = synthetic::collection(20, 1000, 8)
         .into_iter()

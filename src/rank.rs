@@ -19,11 +19,12 @@ use std::sync::Arc;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use crate::descriptor::{histogram_l1, GeodesicDescriptor};
-use crate::params::{HybridParams, SimilarityParams};
+use crate::descriptor::geodesic::Cumulative;
+use crate::descriptor::{histogram_l1, GeodesicDescriptor, LightFieldDescriptor};
+use crate::params::{HybridParams, Params, SimilarityParams};
 use crate::signature::Signature;
 use crate::similarity::{
-    centroid_bound, compare, compare_costs, d2_distance, lower_bound, CostMatrix, Summary,
+    centroid_bound, compare_costs, lower_bound, CostMatrix, Features, Summary,
 };
 
 mod columns;
@@ -75,13 +76,8 @@ impl FromStr for Method {
 /// Distance between two signatures under `method`; infinite for [`Method::Lfd`] when either
 /// signature predates the light field descriptor (see [`Method::comparable`]).
 pub fn distance(method: Method, p: &Signature, q: &Signature, params: &SimilarityParams) -> f64 {
-    match method {
-        Method::Hybrid => fuse(&params.hybrid, hybrid_parts(p, q, params)),
-        Method::Ecc => compare(p, q, params).sim,
-        Method::D2 => d2_distance(p, q),
-        Method::Lfd => lfd_distance(p, q).unwrap_or(f64::INFINITY),
-        Method::Geodesic => geodesic_distance(p, q).unwrap_or(f64::INFINITY),
-    }
+    let (p, q) = (Prepared::of(p), Prepared::of(q));
+    compared_distance(method, p.compared(), q.compared(), params)
 }
 
 /// The hybrid's parts, in the order of [`fuse`]'s arguments.
@@ -90,35 +86,85 @@ pub const PARTS: [Method; 4] = [Method::Ecc, Method::D2, Method::Lfd, Method::Ge
 /// The hybrid's part distances ([`PARTS`]): `None` for a part one side lacks or the hybrid
 /// does not weigh.
 pub fn hybrid_parts(p: &Signature, q: &Signature, params: &SimilarityParams) -> [Option<f64>; 4] {
+    let (p, q) = (Prepared::of(p), Prepared::of(q));
+    parts(p.compared(), q.compared(), params)
+}
+
+/// What the methods compare of one model, borrowed from an index entry or from a
+/// [`Prepared`] signature: one implementation of each distance serves both.
+#[derive(Clone, Copy)]
+struct Compared<'a> {
+    features: &'a Features,
+    d2: &'a [f32],
+    lfd: Option<&'a LightFieldDescriptor>,
+    geodesic: Option<&'a Cumulative>,
+}
+
+/// A signature with the forms of its descriptors that the methods compare.
+struct Prepared<'a> {
+    signature: &'a Signature,
+    features: Features,
+    geodesic: Option<Cumulative>,
+}
+
+impl<'a> Prepared<'a> {
+    fn of(signature: &'a Signature) -> Self {
+        Self {
+            signature,
+            features: Features::of(&signature.features),
+            geodesic: signature
+                .geodesic
+                .as_ref()
+                .map(GeodesicDescriptor::cumulative),
+        }
+    }
+
+    fn compared(&self) -> Compared<'_> {
+        Compared {
+            features: &self.features,
+            d2: &self.signature.d2,
+            lfd: self.signature.lfd.as_ref(),
+            geodesic: self.geodesic.as_ref(),
+        }
+    }
+}
+
+fn compared_distance(method: Method, p: Compared, q: Compared, params: &SimilarityParams) -> f64 {
+    match method {
+        Method::Hybrid => fuse(&params.hybrid, parts(p, q, params)),
+        Method::Ecc => ecc_distance(p, q, params),
+        Method::D2 => histogram_l1(p.d2, q.d2),
+        Method::Lfd => lfd_distance(p, q).unwrap_or(f64::INFINITY),
+        Method::Geodesic => geodesic_distance(p, q).unwrap_or(f64::INFINITY),
+    }
+}
+
+fn parts(p: Compared, q: Compared, params: &SimilarityParams) -> [Option<f64>; 4] {
     let h = &params.hybrid;
-    let ecc =
-        (h.ecc.weight > 0.0 && has_features(p, q)).then(|| compare(p, q, &params.hybrid_ecc()).sim);
+    let ecc = (h.ecc.weight > 0.0 && !p.features.is_empty() && !q.features.is_empty())
+        .then(|| ecc_distance(p, q, &params.hybrid_ecc()));
+    let lfd = (h.lfd.weight > 0.0).then(|| lfd_distance(p, q)).flatten();
     [
         ecc,
-        Some(d2_distance(p, q)),
-        hybrid_lfd(h, p, q),
+        Some(histogram_l1(p.d2, q.d2)),
+        lfd,
         geodesic_distance(p, q),
     ]
 }
 
-/// Whether both signatures have salient features, without which the EMD is undefined.
-fn has_features(p: &Signature, q: &Signature) -> bool {
-    !p.features.is_empty() && !q.features.is_empty()
+/// SPEC §5's `SIM(P, Q)`.
+fn ecc_distance(p: Compared, q: Compared, params: &SimilarityParams) -> f64 {
+    compare_costs(&CostMatrix::new(p.features, q.features, params), params).sim
 }
 
 /// The geodesic distance when both have the descriptor.
-fn geodesic_distance(p: &Signature, q: &Signature) -> Option<f64> {
-    Some(p.geodesic.as_ref()?.distance(q.geodesic.as_ref()?))
+fn geodesic_distance(p: Compared, q: Compared) -> Option<f64> {
+    Some(p.geodesic?.distance(q.geodesic?))
 }
 
 /// The LFD distance when both have the descriptor.
-fn lfd_distance(p: &Signature, q: &Signature) -> Option<f64> {
-    Some(p.lfd.as_ref()?.distance(q.lfd.as_ref()?))
-}
-
-/// The LFD part of the hybrid, computed only when it weighs anything.
-fn hybrid_lfd(h: &HybridParams, p: &Signature, q: &Signature) -> Option<f64> {
-    (h.lfd.weight > 0.0).then(|| lfd_distance(p, q)).flatten()
+fn lfd_distance(p: Compared, q: Compared) -> Option<f64> {
+    Some(p.lfd?.distance(q.lfd?))
 }
 
 /// The hybrid distance `Σ wᵢ · dᵢ / sᵢ` over the [`PARTS`] (SPEC §9), from each
@@ -269,6 +315,8 @@ pub struct Index {
     params: SimilarityParams,
     entries: Columns,
     position: imbl::HashMap<Arc<str>, usize>,
+    /// The distinct extraction parameters of the entries, shared by them (usually one).
+    extractions: Vec<Arc<Params>>,
 }
 
 /// Entries whose exact distances are computed together (in parallel) between bound checks.
@@ -283,12 +331,23 @@ impl Index {
             params,
             entries: Columns::default(),
             position: imbl::HashMap::new(),
+            extractions: Vec::new(),
         }
     }
 
-    /// Adds an entry, replacing one with the same id.
-    pub fn insert(&mut self, id: impl Into<Arc<str>>, signature: impl Into<Arc<Signature>>) {
-        let row = Row::new(id.into(), signature.into(), &self.params);
+    /// Adds an entry, replacing one with the same id. The index keeps what ranking compares,
+    /// in the form it compares it ([`Features`]); what only a response shows (positions,
+    /// statistics) stays in the store.
+    pub fn insert(&mut self, id: impl Into<Arc<str>>, signature: &Signature) {
+        let extraction = match self.extractions.iter().find(|p| ***p == signature.params) {
+            Some(p) => p.clone(),
+            None => {
+                let p = Arc::new(signature.params.clone());
+                self.extractions.push(p.clone());
+                p
+            }
+        };
+        let row = Row::new(id.into(), signature, extraction, &self.params);
         match self.position.get(row.id()) {
             Some(&i) => self.entries.set(i, row),
             None => {
@@ -309,11 +368,11 @@ impl Index {
         true
     }
 
-    /// The signature stored under `id`.
-    pub fn get(&self, id: &str) -> Option<&Arc<Signature>> {
-        self.position
-            .get(id)
-            .map(|&i| self.entries.get(i).signature())
+    /// Whether the entry `id` is stale under `current` ([`Signature::staleness`]); `None`
+    /// when there is no such entry.
+    pub fn stale(&self, id: &str, current: &Params) -> Option<bool> {
+        let &i = self.position.get(id)?;
+        Some(self.entries.get(i).staleness(current).is_some())
     }
 
     /// The parameters the index compares with.
@@ -410,14 +469,8 @@ impl Index {
         params: &SimilarityParams,
         scope: &Scope,
     ) -> Ranking {
-        // D2 and geodesic rankings visit every entry: they read what the index keeps beside
-        // the signature.
-        let query_geodesic = query.geodesic.as_ref().map(GeodesicDescriptor::cumulative);
-        let distance = |e: Entry| match (method, &query_geodesic, e.geodesic()) {
-            (Method::D2, _, _) => histogram_l1(&query.d2, e.d2()),
-            (Method::Geodesic, Some(q), Some(g)) => q.distance(g),
-            _ => distance(method, query, e.signature(), params),
-        };
+        let query = Prepared::of(query);
+        let distance = |e: Entry| compared_distance(method, query.compared(), e.compared(), params);
         let admits = self.admits(scope);
         let mut scored: Vec<(f64, usize)> = self
             .entries
@@ -444,7 +497,8 @@ impl Index {
     /// then the relaxed-EMD bound from the cost matrix, which the exact EMD reuses.
     fn search_ecc(&self, query: &Signature, k: usize, scope: &Scope) -> Ranking {
         let params = &self.params;
-        let summary = Summary::of(query, params);
+        let features = Features::of(&query.features);
+        let summary = Summary::of(&features, params);
         let centroid = summary.centroid();
         let centroid = (&centroid.0[..], &centroid.1[..], summary.features());
         self.cascade(
@@ -453,7 +507,7 @@ impl Index {
             |e| centroid_bound(centroid, e.centroid(), params),
             |e, _| Some(lower_bound(&summary, e.summary(), params)),
             |e, kth| {
-                let costs = CostMatrix::new(query, e.signature(), params);
+                let costs = CostMatrix::new(&features, e.features(), params);
                 (costs.relaxed_bound(params) <= kth).then(|| compare_costs(&costs, params).sim)
             },
         )
@@ -468,7 +522,8 @@ impl Index {
         let h = &self.params.hybrid;
         // The summaries depend on `W` only, which the hybrid's ECC part shares.
         let params = &self.params.hybrid_ecc();
-        let summary = Summary::of(query, params);
+        let prepared = Prepared::of(query);
+        let summary = Summary::of(&prepared.features, params);
         let lfd_query = query.lfd.as_ref().map(|d| (d.sketch(), d.summary()));
         let lfd_sketch = |e: Entry| match (&lfd_query, e.sketch()) {
             (Some((q, _)), Some(s)) if h.lfd.weight > 0.0 => Some(q.lower_bound(s)),
@@ -482,12 +537,11 @@ impl Index {
         let lfd_exact = |e: Entry, cutoff: f64| {
             let (query, (_, ours)) = query.lfd.as_ref().zip(lfd_query.as_ref())?;
             let theirs = e.lfd()?;
-            query.distance_with(ours, e.signature().lfd.as_ref()?, theirs, cutoff)
+            query.distance_with(ours, e.light_field()?, theirs, cutoff)
         };
         // Left out (as `fuse` would leave it) when it weighs nothing, as in the defaults.
         let d2 = |e: Entry| (h.d2.weight > 0.0).then(|| histogram_l1(&query.d2, e.d2()));
-        let query_geodesic = query.geodesic.as_ref().map(GeodesicDescriptor::cumulative);
-        let geodesic = |e: Entry| Some(query_geodesic.as_ref()?.distance(e.geodesic()?));
+        let geodesic = |e: Entry| Some(prepared.geodesic.as_ref()?.distance(e.geodesic()?));
         // From the entry's summary, not its signature: this runs for every entry, and the
         // signature is another cache miss away.
         let with_ecc = |e: Entry| {
@@ -515,7 +569,8 @@ impl Index {
         // (~50 µs), and only then the EMD itself.
         let exact = |e: Entry, kth: f64| {
             let (d2, geodesic) = (d2(e), geodesic(e));
-            let costs = with_ecc(e).then(|| CostMatrix::new(query, e.signature(), params));
+            let costs =
+                with_ecc(e).then(|| CostMatrix::new(&prepared.features, e.features(), params));
             let relaxed = costs.as_ref().map(|c| c.relaxed_bound(params));
             if fuse(h, [relaxed, d2, lfd_bound(e), geodesic]) > kth {
                 return None;
@@ -557,7 +612,7 @@ impl Index {
             |e| sketch.lower_bound(e.sketch().expect(KEPT)),
             |e, _| Some(summary.lower_bound(e.lfd().expect(KEPT))),
             |e, kth| {
-                let descriptor = e.signature().lfd.as_ref().expect(KEPT);
+                let descriptor = e.light_field().expect(KEPT);
                 query.distance_with(&summary, descriptor, e.lfd().expect(KEPT), kth)
             },
         )

@@ -133,9 +133,19 @@ pub enum Staleness {
 impl Signature {
     /// `None` if this signature is what extracting its mesh with `current` would give.
     pub fn staleness(&self, current: &Params) -> Option<Staleness> {
-        if !self.params.same_extraction(current) {
+        let complete = self.lfd.is_some() && self.geodesic.is_some();
+        Staleness::of(&self.params, complete, current)
+    }
+}
+
+impl Staleness {
+    /// The rule, from what it reads: the parameters a signature was made with and whether
+    /// it holds every descriptor (so that the ranking index, which keeps no signatures,
+    /// applies it too).
+    pub fn of(made_with: &Params, complete: bool, current: &Params) -> Option<Self> {
+        if !made_with.same_extraction(current) {
             Some(Staleness::Parameters)
-        } else if self.lfd.is_none() || self.geodesic.is_none() {
+        } else if !complete {
             Some(Staleness::MissingDescriptor)
         } else {
             None
@@ -204,9 +214,9 @@ impl From<StoredFeature> for Feature {
     }
 }
 
-const BIN_SCALE: f64 = 65_535.0;
+pub(crate) const BIN_SCALE: f64 = 65_535.0;
 
-fn quantise(histogram: &[f32]) -> Vec<u16> {
+pub(crate) fn quantise(histogram: &[f32]) -> Vec<u16> {
     histogram
         .iter()
         .map(|&h| (h as f64 * BIN_SCALE).round().clamp(0.0, BIN_SCALE) as u16)

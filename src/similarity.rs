@@ -8,7 +8,7 @@ use serde::{Deserialize, Serialize};
 use crate::descriptor::histogram_l1;
 use crate::emd::{emd_flows, emd_matrix};
 use crate::params::SimilarityParams;
-use crate::signature::{Feature, Signature};
+use crate::signature::{quantise, Feature, Signature, BIN_SCALE};
 
 /// The result of comparing two signatures by their salient features.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -21,15 +21,69 @@ pub struct Similarity {
     pub n: usize,
 }
 
-/// Ground distance (Eq. 11): `W · ‖α_p − α_q‖₂ / √N + (1 − W) · ½‖h_p − h_q‖₁`.
-pub fn ground_distance(p: &Feature, q: &Feature, w: f64) -> f64 {
-    let ecc = rms(&p.ecc, &q.ecc);
-    w * ecc + (1.0 - w) * histogram_l1(&p.d2, &q.d2)
+/// A model's salient features as they are compared: ECC values in single precision and region
+/// D2 bins as fractions of 65 535, the precision they are stored in ([`crate::signature`]),
+/// each kind in one array. A fresh extraction and its stored copy compare alike, and an index
+/// of 100 000 models holds a quarter of what `Vec<Feature>` took (positions, regions and
+/// per-feature allocations are left with the signature).
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct Features {
+    count: usize,
+    /// `count` rows of ECC values.
+    ecc: Box<[f32]>,
+    /// `count` rows of region D2 bins, each `round(65 535 · bin)`.
+    d2: Box<[u16]>,
 }
 
-/// `‖a − b‖₂ / √len`.
-fn rms(a: &[f64], b: &[f64]) -> f64 {
-    let sum: f64 = a.iter().zip(b).map(|(x, y)| (x - y) * (x - y)).sum();
+impl Features {
+    pub fn of(features: &[Feature]) -> Self {
+        Self {
+            count: features.len(),
+            ecc: features
+                .iter()
+                .flat_map(|f| f.ecc.iter().map(|&a| a as f32))
+                .collect(),
+            d2: features.iter().flat_map(|f| quantise(&f.d2)).collect(),
+        }
+    }
+
+    pub fn len(&self) -> usize {
+        self.count
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.count == 0
+    }
+
+    fn ecc(&self, i: usize) -> &[f32] {
+        let len = self.ecc.len() / self.count;
+        &self.ecc[i * len..(i + 1) * len]
+    }
+
+    fn d2(&self, i: usize) -> &[u16] {
+        let len = self.d2.len() / self.count;
+        &self.d2[i * len..(i + 1) * len]
+    }
+
+    fn each(&self) -> impl Iterator<Item = (&[f32], &[u16])> {
+        (0..self.count).map(|i| (self.ecc(i), self.d2(i)))
+    }
+}
+
+/// Ground distance (Eq. 11) between feature `i` of `p` and `j` of `q`:
+/// `W · ‖α_p − α_q‖₂ / √N + (1 − W) · ½‖h_p − h_q‖₁`.
+fn ground_distance(p: (&[f32], &[u16]), q: (&[f32], &[u16]), w: f64) -> f64 {
+    let ecc = rms(p.0, q.0);
+    w * ecc + (1.0 - w) * histogram_l1(p.1, q.1) / BIN_SCALE
+}
+
+/// `‖a − b‖₂ / √len`, summed in f64.
+fn rms<T: Copy + Into<f64>>(a: &[T], b: &[T]) -> f64 {
+    let sum: f64 = a
+        .iter()
+        .zip(b)
+        .map(|(&x, &y)| (x.into() - y.into()).powi(2))
+        .sum();
     (sum / a.len().max(1) as f64).sqrt()
 }
 
@@ -48,7 +102,8 @@ pub fn penalty(m: usize, n: usize, params: &SimilarityParams) -> f64 {
 
 /// `SIM(P, Q)` by exact EMD over the features, each of weight `1/m` resp. `1/n` (Eq. 12).
 pub fn compare(p: &Signature, q: &Signature, params: &SimilarityParams) -> Similarity {
-    compare_costs(&CostMatrix::new(p, q, params), params)
+    let (p, q) = (Features::of(&p.features), Features::of(&q.features));
+    compare_costs(&CostMatrix::new(&p, &q, params), params)
 }
 
 /// Ground distances between every feature of `P` (rows) and of `Q` (columns).
@@ -70,14 +125,12 @@ impl CostMatrix {
         }
     }
 
-    pub fn new(p: &Signature, q: &Signature, params: &SimilarityParams) -> Self {
-        let (m, n) = (p.features.len(), q.features.len());
+    pub fn new(p: &Features, q: &Features, params: &SimilarityParams) -> Self {
+        let (m, n) = (p.len(), q.len());
         let cost = p
-            .features
-            .iter()
+            .each()
             .flat_map(|a| {
-                q.features
-                    .iter()
+                q.each()
                     .map(move |b| ground_distance(a, b, params.ecc_weight))
             })
             .collect();
@@ -139,7 +192,8 @@ pub fn explain(
     q: &Signature,
     params: &SimilarityParams,
 ) -> (Similarity, Vec<Match>) {
-    let costs = CostMatrix::new(p, q, params);
+    let (p, q) = (Features::of(&p.features), Features::of(&q.features));
+    let costs = CostMatrix::new(&p, &q, params);
     let (m, n) = (costs.m, costs.n);
     if m == 0 || n == 0 {
         return (costs.similarity(f64::INFINITY, params), Vec::new());
@@ -238,39 +292,37 @@ pub fn centroid_bound(
 /// is applied: `|u·Δα| ≤ ‖Δα‖₂` for a unit `u` (scaled by `1/√N` like `d_ECC`), and
 /// `½|c·Δh| ≤ ½‖Δh‖₁` for `|c_k| ≤ 1`. Mean ECC, ECC slope across the waves, and mean D2 distance
 /// (bin centres mapped to [-1, 1]).
-fn projections(f: &Feature) -> [(f64, f64); 3] {
-    let n = f.ecc.len().max(1) as f64;
-    let mean = f.ecc.iter().sum::<f64>() / n; // u = 1/√N: (u·α)/√N = mean
+fn projections((ecc, d2): (&[f32], &[u16])) -> [(f64, f64); 3] {
+    let n = ecc.len().max(1) as f64;
+    let mean = ecc.iter().map(|&a| a as f64).sum::<f64>() / n; // u = 1/√N: (u·α)/√N = mean
     let centre = (n - 1.0) / 2.0;
-    let spread = (0..f.ecc.len())
+    let spread = (0..ecc.len())
         .map(|i| (i as f64 - centre).powi(2))
         .sum::<f64>()
         .sqrt()
         .max(1e-12);
-    let slope = f
-        .ecc
+    let slope = ecc
         .iter()
         .enumerate()
-        .map(|(i, a)| (i as f64 - centre) / spread * a)
+        .map(|(i, &a)| (i as f64 - centre) / spread * a as f64)
         .sum::<f64>()
         / n.sqrt();
-    let bins = f.d2.len().max(1) as f64;
-    let distance =
-        f.d2.iter()
-            .enumerate()
-            .map(|(k, &h)| (2.0 * k as f64 + 1.0 - bins) / bins * h as f64)
-            .sum::<f64>()
-            / 2.0;
+    let bins = d2.len().max(1) as f64;
+    let distance = d2
+        .iter()
+        .enumerate()
+        .map(|(k, &h)| (2.0 * k as f64 + 1.0 - bins) / bins * (h as f64 / BIN_SCALE))
+        .sum::<f64>()
+        / 2.0;
     // (ECC part, D2 part) of each projection; the weight W combines them at query time.
     [(mean, 0.0), (slope, 0.0), (0.0, distance)]
 }
 
 impl Summary {
-    pub fn of(signature: &Signature, params: &SimilarityParams) -> Self {
-        let count = signature.features.len();
+    pub fn of(features: &Features, params: &SimilarityParams) -> Self {
+        let count = features.len();
         let w = params.ecc_weight;
-        let per_feature: Vec<[(f64, f64); 3]> =
-            signature.features.iter().map(projections).collect();
+        let per_feature: Vec<[(f64, f64); 3]> = features.each().map(projections).collect();
         let mut projected: Vec<Vec<f64>> = (0..3)
             .map(|k| {
                 per_feature
@@ -291,8 +343,8 @@ impl Summary {
         }
         debug_assert_eq!(projected.len(), PROJECTIONS);
         let (ecc_mean, d2_mean) = (
-            mean(&signature.features, |f| &f.ecc),
-            mean(&signature.features, |f| &f.d2),
+            mean(features, |f| f.0, 1.0),
+            mean(features, |f| f.1, BIN_SCALE),
         );
         Self {
             count,
@@ -307,17 +359,21 @@ impl Summary {
     }
 }
 
-/// The mean over `features` of one of their vectors.
-fn mean<T: Copy + Into<f64>>(features: &[Feature], get: impl Fn(&Feature) -> &[T]) -> Vec<f64> {
-    let len = features.first().map_or(0, |f| get(f).len());
+/// The mean over `features` of one of their vectors, each value divided by `unit`.
+fn mean<'a, T: Copy + Into<f64> + 'a>(
+    features: &'a Features,
+    get: impl Fn((&'a [f32], &'a [u16])) -> &'a [T],
+    unit: f64,
+) -> Vec<f64> {
+    let len = features.each().next().map_or(0, |f| get(f).len());
     let mut sum = vec![0.0; len];
-    for f in features {
+    for f in features.each() {
         for (s, &x) in sum.iter_mut().zip(get(f)) {
             *s += x.into();
         }
     }
     sum.into_iter()
-        .map(|s| s / features.len().max(1) as f64)
+        .map(|s| s / unit / features.len().max(1) as f64)
         .collect()
 }
 

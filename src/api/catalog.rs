@@ -5,7 +5,7 @@
 //! writer, already serialised with the store by the service's write mutex, builds the next
 //! snapshot from the current one and swaps it in. So a reader never waits for a writer, and
 //! no lock is ever held on an async thread. Records are a persistent map (`imbl`) and index
-//! entries are shared `Arc`s, so a new snapshot copies pointers, not signatures.
+//! entries are kept in shared chunks, so a new snapshot copies pointers and a chunk or two.
 
 use std::sync::Arc;
 
@@ -32,7 +32,7 @@ impl Snapshot {
     }
 
     /// Adds or replaces a model.
-    pub fn put(&mut self, record: ModelRecord, signature: impl Into<Arc<Signature>>) {
+    pub fn put(&mut self, record: ModelRecord, signature: &Signature) {
         self.index.insert(record.id.clone(), signature);
         self.records.insert(record.id.clone(), Arc::new(record));
     }
@@ -48,11 +48,7 @@ impl Snapshot {
             .records
             .range::<_, ModelId>((start, std::ops::Bound::Unbounded))
             .map(|(id, _)| id);
-        records.filter(|id| {
-            self.index
-                .get(id.as_str())
-                .is_some_and(|s| s.staleness(params).is_some())
-        })
+        records.filter(|id| self.index.stale(id.as_str(), params) == Some(true))
     }
 }
 
@@ -85,8 +81,15 @@ impl Catalog {
     }
 
     /// Adds or replaces a model; returns the number of models.
-    pub fn put(&self, record: ModelRecord, signature: impl Into<Arc<Signature>>) -> usize {
+    pub fn put(&self, record: ModelRecord, signature: &Signature) -> usize {
         self.update(|s| s.put(record, signature))
+    }
+
+    /// Replaces a model's record, its signature unchanged.
+    pub fn set_record(&self, record: ModelRecord) {
+        self.update(|s| {
+            s.records.insert(record.id.clone(), Arc::new(record));
+        });
     }
 
     /// Removes a model; returns the number of models.

@@ -134,7 +134,7 @@ impl App {
                 Some(Staleness::MissingDescriptor) => missing_descriptor += 1,
                 None => {}
             }
-            snapshot.put(loaded.record, signature);
+            snapshot.put(loaded.record, &signature);
         }
         let models = snapshot.records.len();
         let catalog = Catalog::new(snapshot);

@@ -54,11 +54,9 @@ pub async fn add_model(
         .unwrap_or_else(|| ModelId::from_content(&content_hash));
     let wanted = fields.fields();
     let snapshot = app.catalog.snapshot();
-    if let (Some(record), Some(signature)) =
-        (snapshot.records.get(&id), snapshot.index.get(id.as_str()))
-    {
+    if let Some(record) = snapshot.records.get(&id) {
         let unchanged = record.content_hash == content_hash
-            && signature.staleness(&app.config.params).is_none()
+            && snapshot.index.stale(id.as_str(), &app.config.params) == Some(false)
             && (named.is_none() || record.fields() == wanted);
         if unchanged {
             return Ok((StatusCode::OK, Json(ModelRecord::clone(record))));
@@ -79,7 +77,7 @@ pub async fn add_model(
     if let Some(previous) = &previous {
         record.created_unix = previous.created_unix;
     }
-    let models = app.catalog.put(record.clone(), signature);
+    let models = app.catalog.put(record.clone(), &signature);
     app.set_model_count(models);
     let status = if previous.is_some() {
         StatusCode::OK
@@ -240,12 +238,12 @@ pub async fn get_signature(
     AppPath(path): AppPath<ModelPath>,
 ) -> Result<Json<Arc<Signature>>, AppError> {
     let id = path.id()?;
-    let snapshot = app.catalog.snapshot();
-    let signature = snapshot
-        .index
-        .get(id.as_str())
+    let stored = id.clone();
+    let signature = app
+        .with_store(move |store| store.decoded_signature(stored.as_str()))
+        .await?
         .ok_or_else(|| no_model(&id))?;
-    Ok(Json(signature.clone()))
+    Ok(Json(Arc::new(signature)))
 }
 
 /// `null` and a value are different things in a patch: `null` clears, absent keeps.
@@ -295,15 +293,15 @@ pub async fn patch_model(
     let patch: ModelPatch = serde_json::from_value(serde_json::Value::Object(body))
         .map_err(|e| AppError::bad_request("invalid_json", e.to_string()))?;
     let _write = app.writes.lock().await;
-    let snapshot = app.catalog.snapshot();
-    let (Some(current), Some(signature)) =
-        (snapshot.records.get(&id), snapshot.index.get(id.as_str()))
+    let Some(mut record) = app
+        .catalog
+        .snapshot()
+        .records
+        .get(&id)
+        .map(|r| ModelRecord::clone(r))
     else {
         return Err(no_model(&id));
     };
-    let mut record = ModelRecord::clone(current);
-    let signature = Signature::clone(signature);
-    drop(snapshot);
     if let Some(name) = patch.name {
         record.name = name;
     }
@@ -318,13 +316,17 @@ pub async fn patch_model(
         record.class = class;
     }
     record.updated_unix = crate::model::now_unix();
-    let (stored, bytes) = (record.clone(), signature.to_bytes());
+    // The signature is rewritten as stored: the record and signature change together.
+    let stored = record.clone();
     let updated = app
-        .with_store(move |store| store.update_model(&stored, &bytes))
+        .with_store(move |store| match store.signature(stored.id.as_str())? {
+            Some(bytes) => store.update_model(&stored, &bytes),
+            None => Ok(false),
+        })
         .await?;
     if !updated {
         return Err(no_model(&id));
     }
-    app.catalog.put(record.clone(), signature);
+    app.catalog.set_record(record.clone());
     Ok(Json(record))
 }

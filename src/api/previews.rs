@@ -89,17 +89,21 @@ struct Source {
 }
 
 impl Source {
-    fn of(app: &AppState, id: ModelId) -> Result<Self, AppError> {
-        let snapshot = app.catalog.snapshot();
-        let (Some(record), Some(signature)) =
-            (snapshot.records.get(&id), snapshot.index.get(id.as_str()))
-        else {
-            return Err(no_model(&id));
-        };
+    /// The model's record and signature, read together from the store (the index keeps no
+    /// positions).
+    async fn of(app: &AppState, id: ModelId) -> Result<Self, AppError> {
+        let stored = id.clone();
+        let found = app
+            .with_store(move |store| {
+                let record = store.get(stored.as_str())?;
+                Ok(record.zip(store.decoded_signature(stored.as_str())?))
+            })
+            .await?;
+        let (record, signature) = found.ok_or_else(|| no_model(&id))?;
         Ok(Source {
-            key: Preview::key(&record.content_hash, signature),
-            content_hash: record.content_hash.clone(),
-            signature: signature.clone(),
+            key: Preview::key(&record.content_hash, &signature),
+            content_hash: record.content_hash,
+            signature: Arc::new(signature),
             id,
         })
     }
@@ -183,7 +187,7 @@ pub async fn get_thumbnail(
 ) -> Result<Response, AppError> {
     let size = size_of(q.size)?;
     let features = q.features.unwrap_or(false);
-    let source = Source::of(&app, path.id()?)?;
+    let source = Source::of(&app, path.id()?).await?;
     let up = app.config.up_axis;
     let etag = source.etag(&format!(
         "{size}{}{}",
@@ -222,7 +226,7 @@ pub async fn get_preview(
     AppPath(path): AppPath<ModelPath>,
     headers: HeaderMap,
 ) -> Result<Response, AppError> {
-    let source = Source::of(&app, path.id()?)?;
+    let source = Source::of(&app, path.id()?).await?;
     let up = app.config.up_axis;
     let etag = source.etag(up.as_str());
     if let Some(unchanged) = not_modified(&headers, &etag) {
@@ -312,8 +316,8 @@ pub async fn compare(
     headers: HeaderMap,
 ) -> Result<Response, AppError> {
     let size = size_of(q.size)?;
-    let a = Source::of(&app, ModelId::parse(&q.a)?)?;
-    let b = Source::of(&app, ModelId::parse(&q.b)?)?;
+    let a = Source::of(&app, ModelId::parse(&q.a)?).await?;
+    let b = Source::of(&app, ModelId::parse(&q.b)?).await?;
     let up = app.config.up_axis;
     let etag = format!(
         "\"{}-{}-{size}{}\"",

@@ -227,7 +227,7 @@ async fn reextract(app: &Arc<App>, id: &ModelId) -> Result<(), String> {
         .await
         .map_err(hidden)?;
     if updated {
-        app.catalog.put(record, signature);
+        app.catalog.put(record, &signature);
     }
     Ok(())
 }

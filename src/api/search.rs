@@ -209,6 +209,7 @@ async fn rank(
             .collect(),
     });
     let tag = q.tag.clone();
+    let explained = explain_hits.then(|| (query.clone(), params.clone()));
     let results = app
         .read_catalog(move |catalog| {
             let tagged = |id: &str| {
@@ -233,12 +234,8 @@ async fn rank(
                 .enumerate()
                 .map(|(i, hit)| {
                     let record = catalog.records.get(hit.id.as_str());
-                    let explanation = explain_hits
-                        .then(|| catalog.index.get(hit.id.as_str()))
-                        .flatten()
-                        .map(|result| explanation(&query, result, &params));
                     SearchHit {
-                        explanation,
+                        explanation: None,
                         rank: i + 1,
                         name: record.and_then(|r| r.name.clone()),
                         tags: record.map(|r| r.tags.clone()).unwrap_or_default(),
@@ -253,7 +250,26 @@ async fn rank(
         .await?;
     let search_seconds = search_clock.elapsed().as_secs_f64();
     app.metrics.search_seconds.observe(search_seconds);
-    let (results, evaluated, pruned, left_out, partial) = results;
+    let (mut results, evaluated, pruned, left_out, partial) = results;
+    if let Some((query, params)) = explained {
+        // What an explanation shows (feature positions, every method's distance) is read
+        // from the store: the index keeps only what ranking compares. A model deleted since
+        // the ranking has none.
+        let ids: Vec<String> = results.iter().map(|r| r.id.clone()).collect();
+        let explanations = app
+            .with_store(move |store| {
+                ids.iter()
+                    .map(|id| {
+                        let stored = store.decoded_signature(id)?;
+                        Ok(stored.map(|result| explanation(&query, &result, &params)))
+                    })
+                    .collect::<Result<Vec<_>, _>>()
+            })
+            .await?;
+        for (result, explanation) in results.iter_mut().zip(explanations) {
+            result.explanation = explanation;
+        }
+    }
     Ok(Json(SearchResponse {
         method,
         k,
@@ -327,12 +343,11 @@ pub async fn similar(
 ) -> Result<Json<SearchResponse>, AppError> {
     let id = path.id()?;
     let clock = Instant::now();
+    let stored = id.clone();
     let signature = app
-        .catalog
-        .snapshot()
-        .index
-        .get(id.as_str())
-        .cloned()
+        .with_store(move |store| store.decoded_signature(stored.as_str()))
+        .await?
+        .map(Arc::new)
         .ok_or_else(|| no_model(&id))?;
     let method = q.method.unwrap_or_default();
     if !method.comparable(&signature) {

@@ -113,7 +113,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                     Source::Cached => cached += 1,
                     Source::Extracted => extracted += 1,
                 }
-                index.insert(id, signature);
+                index.insert(id, &signature);
             }
             Err(error) => {
                 progress.suspend(|| eprintln!("skipping {id}: {error}"));

@@ -13,12 +13,12 @@ use rayon::prelude::*;
 
 use crate::descriptor::geodesic::Cumulative;
 use crate::descriptor::lfd::{LfdSketch, LfdSummary};
-use crate::descriptor::GeodesicDescriptor;
-use crate::params::SimilarityParams;
-use crate::signature::Signature;
-use crate::similarity::Summary;
+use crate::descriptor::{GeodesicDescriptor, LightFieldDescriptor};
+use crate::params::{Params, SimilarityParams};
+use crate::signature::{Signature, Staleness};
+use crate::similarity::{Features, Summary};
 
-use super::{Holds, Method};
+use super::{Compared, Holds, Method};
 
 /// Entries per chunk: a copy on write moves about a megabyte.
 const CHUNK: usize = 1024;
@@ -76,7 +76,9 @@ impl Rows {
 #[derive(Debug, Clone, Default)]
 struct Chunk {
     ids: Vec<Arc<str>>,
-    signatures: Vec<Arc<Signature>>,
+    extractions: Vec<Arc<Params>>,
+    features: Vec<Features>,
+    light_fields: Vec<Option<LightFieldDescriptor>>,
     summaries: Vec<Summary>,
     sketches: Vec<Option<LfdSketch>>,
     lfd: Vec<Option<LfdSummary>>,
@@ -89,7 +91,10 @@ struct Chunk {
 /// What the index keeps of one model, computed once when it is inserted.
 pub struct Row {
     id: Arc<str>,
-    signature: Arc<Signature>,
+    extraction: Arc<Params>,
+    features: Features,
+    light_field: Option<LightFieldDescriptor>,
+    d2: Vec<f32>,
     summary: Summary,
     centroid: (Vec<f32>, Vec<f32>),
     sketch: Option<LfdSketch>,
@@ -98,19 +103,29 @@ pub struct Row {
 }
 
 impl Row {
-    pub fn new(id: Arc<str>, signature: Arc<Signature>, params: &SimilarityParams) -> Self {
-        let summary = Summary::of(&signature, params);
+    /// `extraction` is `signature.params`, shared with other entries.
+    pub fn new(
+        id: Arc<str>,
+        signature: &Signature,
+        extraction: Arc<Params>,
+        params: &SimilarityParams,
+    ) -> Self {
+        let features = Features::of(&signature.features);
+        let summary = Summary::of(&features, params);
         Self {
             centroid: summary.centroid(),
             summary,
+            features,
             sketch: signature.lfd.as_ref().map(|d| d.sketch()),
             lfd: signature.lfd.as_ref().map(|d| d.summary()),
+            light_field: signature.lfd.clone(),
+            d2: signature.d2.clone(),
             geodesic: signature
                 .geodesic
                 .as_ref()
                 .map(GeodesicDescriptor::cumulative),
             id,
-            signature,
+            extraction,
         }
     }
 
@@ -133,11 +148,13 @@ impl Chunk {
                 column[slot] = value;
             }
         }
-        self.d2.set(slot, &row.signature.d2);
+        self.d2.set(slot, &row.d2);
         self.ecc_mean.set(slot, &row.centroid.0);
         self.d2_mean.set(slot, &row.centroid.1);
         put(&mut self.ids, slot, row.id);
-        put(&mut self.signatures, slot, row.signature);
+        put(&mut self.extractions, slot, row.extraction);
+        put(&mut self.features, slot, row.features);
+        put(&mut self.light_fields, slot, row.light_field);
         put(&mut self.summaries, slot, row.summary);
         put(&mut self.sketches, slot, row.sketch);
         put(&mut self.lfd, slot, row.lfd);
@@ -148,11 +165,13 @@ impl Chunk {
     fn pop(&mut self) -> Row {
         const TAKEN: &str = "a chunk in the index is never empty";
         let centroid = (self.ecc_mean.pop(), self.d2_mean.pop());
-        self.d2.pop();
         Row {
             centroid,
+            d2: self.d2.pop(),
             id: self.ids.pop().expect(TAKEN),
-            signature: self.signatures.pop().expect(TAKEN),
+            extraction: self.extractions.pop().expect(TAKEN),
+            features: self.features.pop().expect(TAKEN),
+            light_field: self.light_fields.pop().expect(TAKEN),
             summary: self.summaries.pop().expect(TAKEN),
             sketch: self.sketches.pop().expect(TAKEN),
             lfd: self.lfd.pop().expect(TAKEN),
@@ -179,8 +198,34 @@ impl<'a> Entry<'a> {
         &self.chunk.ids[self.slot]
     }
 
-    pub fn signature(self) -> &'a Arc<Signature> {
-        &self.chunk.signatures[self.slot]
+    /// The salient features as the ECC method compares them.
+    pub fn features(self) -> &'a Features {
+        &self.chunk.features[self.slot]
+    }
+
+    /// The light field descriptor, for the LFD's exact distance.
+    pub fn light_field(self) -> Option<&'a LightFieldDescriptor> {
+        self.chunk.light_fields[self.slot].as_ref()
+    }
+
+    /// What every method compares, for a distance without bounds.
+    pub fn compared(self) -> Compared<'a> {
+        Compared {
+            features: self.features(),
+            d2: self.d2(),
+            lfd: self.light_field(),
+            geodesic: self.geodesic(),
+        }
+    }
+
+    /// [`Signature::staleness`] of the entry's signature.
+    pub fn staleness(self, current: &Params) -> Option<Staleness> {
+        let holds = self.holds();
+        Staleness::of(
+            &self.chunk.extractions[self.slot],
+            holds.lfd && holds.geodesic,
+            current,
+        )
     }
 
     /// The ECC bound's side ([`Summary`]).

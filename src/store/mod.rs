@@ -10,6 +10,7 @@ mod sled_store;
 use bytes::Bytes;
 
 use crate::model::{ModelId, ModelRecord, Upload};
+use crate::signature::Signature;
 pub use memory::InMemoryStore;
 pub use sled_store::SledStore;
 
@@ -75,6 +76,18 @@ pub trait Store: Send + Sync {
     fn update_model(&self, record: &ModelRecord, signature: &[u8]) -> StoreResult<bool>;
     fn get(&self, id: &str) -> StoreResult<Option<ModelRecord>>;
     fn signature(&self, id: &str) -> StoreResult<Option<Vec<u8>>>;
+    /// [`Store::signature`] decoded: what a response shows of a model's features (the
+    /// ranking index keeps only what it compares).
+    fn decoded_signature(&self, id: &str) -> StoreResult<Option<Signature>> {
+        self.signature(id)?
+            .map(|bytes| {
+                Signature::from_bytes(&bytes).map_err(|e| StoreError::Corrupt {
+                    key: id.to_string(),
+                    message: e.to_string(),
+                })
+            })
+            .transpose()
+    }
     /// The original upload of a model, for re-extraction.
     fn upload(&self, id: &str) -> StoreResult<Option<Upload>>;
     /// One stored file by its SHA-256 (a record's `mesh_blob` or one of its `resources`).

@@ -6,7 +6,7 @@ use crate::synthetic;
 
 use salient::params::{HybridParams, Term};
 use salient::rank::{distance, fuse, Index, Method, Scope};
-use salient::similarity::{centroid_bound, d2_distance, lower_bound, Summary};
+use salient::similarity::{centroid_bound, d2_distance, lower_bound, Features, Summary};
 use salient::{Params, Signature};
 
 #[test]
@@ -20,7 +20,7 @@ fn pruning_never_changes_the_top_k() {
         params.ecc_weight = w;
         let mut index = Index::new(params.clone());
         for (id, s) in &collection {
-            index.insert(id.clone(), s.clone());
+            index.insert(id.clone(), s);
         }
         for (_, query) in &queries {
             for k in [1, 5, 10, 50] {
@@ -45,11 +45,11 @@ fn ties_are_broken_by_id_and_methods_agree_on_self() {
     let mut index = Index::new(params);
     let query = collection[7].1.clone();
     // Two copies of the query under ids that sort before and after it.
-    index.insert("zz-copy", query.clone());
+    index.insert("zz-copy", &query);
     for (id, s) in &collection {
-        index.insert(id.clone(), s.clone());
+        index.insert(id.clone(), s);
     }
-    index.insert("aa-copy", query.clone());
+    index.insert("aa-copy", &query);
     for method in [Method::Ecc, Method::D2] {
         let ranking = index.search(&query, 3, method);
         let ids: Vec<&str> = ranking.hits.iter().map(|h| h.id.as_str()).collect();
@@ -69,11 +69,11 @@ fn lfd_ranks_by_light_field_distance_and_skips_signatures_without_one() {
     let signatures = generated_signatures(&params);
     let mut index = Index::new(params.similarity.clone());
     for (id, s) in &signatures {
-        index.insert(*id, s.clone());
+        index.insert(*id, s);
     }
     let mut old = signatures[3].1.clone();
     old.lfd = None;
-    index.insert("old-bowl", old);
+    index.insert("old-bowl", &old);
     let query = &signatures[0].1;
     let ranking = index.search(query, 10, Method::Lfd);
     let mut expected: Vec<(f64, &str)> = signatures
@@ -150,6 +150,7 @@ fn hybrid_is_the_weighted_sum_of_its_parts_and_its_bound_never_exceeds_it() {
         penalty_power: 1.0,
     };
     let p = &params.similarity;
+    let summary = |s: &Signature| Summary::of(&Features::of(&s.features), p);
     let signatures = generated_signatures(&params);
     for (a, sa) in &signatures {
         for (b, sb) in &signatures {
@@ -169,7 +170,7 @@ fn hybrid_is_the_weighted_sum_of_its_parts_and_its_bound_never_exceeds_it() {
             let bound = fuse(
                 &p.hybrid,
                 [
-                    Some(lower_bound(&Summary::of(sa, p), &Summary::of(sb, p), p)),
+                    Some(lower_bound(&summary(sa), &summary(sb), p)),
                     Some(d2_distance(sa, sb)),
                     Some(
                         sa.lfd
@@ -183,7 +184,7 @@ fn hybrid_is_the_weighted_sum_of_its_parts_and_its_bound_never_exceeds_it() {
             );
             assert!(bound <= hybrid + 1e-12, "{a}–{b}: bound {bound} > {hybrid}");
             // The first pass's single-precision centroid bound is never above the full one.
-            let (summary_a, summary_b) = (Summary::of(sa, p), Summary::of(sb, p));
+            let (summary_a, summary_b) = (summary(sa), summary(sb));
             let (ca, cb) = (summary_a.centroid(), summary_b.centroid());
             let coarse = centroid_bound(
                 (&ca.0, &ca.1, summary_a.features()),
@@ -218,7 +219,7 @@ fn hybrid_weights_load_from_parameters() {
     let signatures = generated_signatures(&d2_only);
     let mut index = Index::new(d2_only.similarity.clone());
     for (id, s) in &signatures {
-        index.insert(*id, s.clone());
+        index.insert(*id, s);
     }
     for (_, query) in &signatures {
         let hybrid = index.search(query, 4, Method::Hybrid);
@@ -285,7 +286,7 @@ fn hybrid_pruning_never_changes_the_top_k() {
         params.hybrid = hybrid.clone();
         let mut index = Index::new(params);
         for (id, s) in &collection {
-            index.insert(id.clone(), s.clone());
+            index.insert(id.clone(), s);
         }
         assert_eq!(
             index.partial(Method::Hybrid, &Scope::default()),
@@ -324,7 +325,7 @@ fn entries_survive_changes_across_chunks() {
     synthetic::with_descriptors(&mut collection, 30, 9);
     let mut index = Index::new(Params::default().similarity);
     for (id, s) in &collection {
-        index.insert(id.clone(), s.clone());
+        index.insert(id.clone(), s);
     }
     // Removed: the first, the last, and a run across the first chunk boundary.
     let removed: Vec<&str> = [0, collection.len() - 1]
@@ -338,13 +339,22 @@ fn entries_survive_changes_across_chunks() {
     }
     // Replaced: an entry of the last chunk takes another's signature.
     let (replaced, with) = (&collection[2100].0, &collection[6].1);
-    index.insert(replaced.clone(), with.clone());
+    index.insert(replaced.clone(), with);
     assert_eq!(index.len(), collection.len() - removed.len());
-    for (id, s) in &collection {
-        match index.get(id) {
-            Some(kept) if id == replaced => assert_eq!(**kept, *with),
-            Some(kept) => assert_eq!(**kept, *s, "{id}"),
-            None => assert!(removed.contains(&id.as_str()), "{id} lost"),
+    let params = Params::default();
+    for (n, (id, s)) in collection.iter().enumerate() {
+        let kept = index.stale(id, &params).is_some();
+        assert_eq!(kept, !removed.contains(&id.as_str()), "{id}");
+        // What an entry holds: its own signature is at distance 0 from it.
+        if kept && n % 97 == 0 {
+            let held = if id == replaced { with } else { s };
+            let only = |other: &str| other == id;
+            let scope = Scope {
+                without: None,
+                keep: Some(&only),
+            };
+            let found = index.search_where(held, 1, Method::Hybrid, &scope);
+            assert_eq!(found.hits[0].distance, 0.0, "{id}");
         }
     }
     let query = &collection[6].1;
