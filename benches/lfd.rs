@@ -103,7 +103,7 @@ fn search_100k(c: &mut Criterion) {
         .enumerate()
     {
         signature.lfd = Some(perturbed(&real[i % real.len()], 6, &mut rng));
-        index.insert(id, &signature);
+        index.insert(id, &signature).expect("shelved");
     }
     let queries: Vec<_> = synthetic::collection(20, 1000, 8)
         .into_iter()
@@ -115,7 +115,7 @@ fn search_100k(c: &mut Criterion) {
         .collect();
     let (mut evaluated, mut pruned) = (0, 0);
     for q in &queries {
-        let r = index.search(q, 10, Method::Lfd);
+        let r = index.search(q, 10, Method::Lfd).expect("ranks");
         evaluated += r.evaluated;
         pruned += r.pruned;
     }

@@ -53,7 +53,7 @@ fn search_100k(c: &mut Criterion) {
     let queries = collection.split_off(100_000);
     let mut index = Index::new(params);
     for (id, s) in collection {
-        index.insert(id, &s);
+        index.insert(id, &s).expect("shelved");
     }
     eprintln!(
         "built a 100 000-entry index in {:.2} s",
@@ -62,7 +62,7 @@ fn search_100k(c: &mut Criterion) {
     for method in [Method::Ecc, Method::Hybrid] {
         let (mut evaluated, mut pruned) = (0, 0);
         for (_, q) in &queries {
-            let r = index.search(q, 10, method);
+            let r = index.search(q, 10, method).expect("ranks");
             evaluated += r.evaluated;
             pruned += r.pruned;
         }
@@ -79,13 +79,13 @@ fn search_100k(c: &mut Criterion) {
             let mut i = 0;
             b.iter(|| {
                 i = (i + 1) % queries.len();
-                index.search(&queries[i].1, 10, method)
+                index.search(&queries[i].1, 10, method).expect("ranks")
             })
         });
     }
     for method in [Method::D2, Method::Geodesic] {
         group.bench_function(format!("{method}_top10"), |b| {
-            b.iter(|| index.search(&queries[0].1, 10, method))
+            b.iter(|| index.search(&queries[0].1, 10, method).expect("ranks"))
         });
     }
     group.finish();
@@ -148,7 +148,7 @@ fn real_signatures(_: &mut Criterion) {
             format!("m{i:06}"),
             corpus::perturbed(source, &mut rng, 0.15),
         );
-        index.insert(id.clone(), &signature);
+        index.insert(id.clone(), &signature).expect("shelved");
         if asked.contains(&i) {
             similar.push((Some(id), signature));
         }
@@ -195,15 +195,17 @@ fn real_signatures(_: &mut Criterion) {
             for (id, query) in &queries {
                 let clock = Instant::now();
                 let ranking = one_thread.install(|| {
-                    index.search_where(
-                        query,
-                        10,
-                        method,
-                        &Scope {
-                            without: *id,
-                            keep: None,
-                        },
-                    )
+                    index
+                        .search_where(
+                            query,
+                            10,
+                            method,
+                            &Scope {
+                                without: *id,
+                                keep: None,
+                            },
+                        )
+                        .expect("ranks")
                 });
                 ms.push(clock.elapsed().as_secs_f64() * 1e3);
                 exact += ranking.evaluated;

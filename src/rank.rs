@@ -13,6 +13,8 @@
 //! so that a pass over all of them streams through memory.
 
 use std::fmt;
+use std::io;
+use std::path::PathBuf;
 use std::str::FromStr;
 use std::sync::Arc;
 
@@ -28,8 +30,11 @@ use crate::similarity::{
 };
 
 mod columns;
+mod shelf;
 
-use columns::{Columns, Entry, Row};
+pub use columns::Row;
+use columns::{Columns, Entry};
+use shelf::Place;
 
 /// How two models are compared.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize, Default)]
@@ -317,6 +322,8 @@ pub struct Index {
     position: imbl::HashMap<Arc<str>, usize>,
     /// The distinct extraction parameters of the entries, shared by them (usually one).
     extractions: Vec<Arc<Params>>,
+    /// Where the entries' light field descriptors are kept ([`shelf`]).
+    shelf: Arc<Place>,
 }
 
 /// Entries whose exact distances are computed together (in parallel) between bound checks.
@@ -326,28 +333,52 @@ const BATCH: usize = 64;
 const SORTED: usize = 16 * BATCH;
 
 impl Index {
+    /// An index whose light field descriptors are shelved in the system's temporary
+    /// directory.
     pub fn new(params: SimilarityParams) -> Self {
+        Self::shelved_in(params, std::env::temp_dir())
+    }
+
+    /// An index whose light field descriptors are shelved in a file in `dir` ([`shelf`]),
+    /// created with the first: a directory on disk, not a memory file system, for their
+    /// pages to be reclaimable.
+    pub fn shelved_in(params: SimilarityParams, dir: PathBuf) -> Self {
         Self {
             params,
             entries: Columns::default(),
             position: imbl::HashMap::new(),
             extractions: Vec::new(),
+            shelf: Arc::new(Place::new(dir)),
         }
     }
 
-    /// Adds an entry, replacing one with the same id. The index keeps what ranking compares,
-    /// in the form it compares it ([`Features`]); what only a response shows (positions,
-    /// statistics) stays in the store.
-    pub fn insert(&mut self, id: impl Into<Arc<str>>, signature: &Signature) {
-        let extraction = match self.extractions.iter().find(|p| ***p == signature.params) {
-            Some(p) => p.clone(),
-            None => {
-                let p = Arc::new(signature.params.clone());
-                self.extractions.push(p.clone());
-                p
-            }
-        };
-        let row = Row::new(id.into(), signature, extraction, &self.params);
+    /// What the index keeps of `signature` ([`Index::put`]): what ranking compares, in the
+    /// form it compares it ([`Features`]), the light field descriptor shelved. What only a
+    /// response shows (positions, statistics) stays in the store. Fails only if the shelf
+    /// cannot be written.
+    pub fn row(&self, id: impl Into<Arc<str>>, signature: &Signature) -> io::Result<Row> {
+        let light_field = signature
+            .lfd
+            .as_ref()
+            .map(|d| self.shelf.put(d))
+            .transpose()?;
+        Ok(Row::new(id.into(), signature, light_field, &self.params))
+    }
+
+    /// [`Index::row`], then [`Index::put`].
+    pub fn insert(&mut self, id: impl Into<Arc<str>>, signature: &Signature) -> io::Result<()> {
+        let row = self.row(id, signature)?;
+        self.put(row);
+        Ok(())
+    }
+
+    /// Adds an entry made by this index's [`Index::row`] (or a copy's), replacing one with
+    /// the same id.
+    pub fn put(&mut self, mut row: Row) {
+        match self.extractions.iter().find(|p| **p == *row.extraction()) {
+            Some(p) => row.share(p.clone()),
+            None => self.extractions.push(row.extraction().clone()),
+        }
         match self.position.get(row.id()) {
             Some(&i) => self.entries.set(i, row),
             None => {
@@ -389,7 +420,7 @@ impl Index {
     }
 
     /// The `k` entries nearest to `query`, nearest first, ties by id.
-    pub fn search(&self, query: &Signature, k: usize, method: Method) -> Ranking {
+    pub fn search(&self, query: &Signature, k: usize, method: Method) -> io::Result<Ranking> {
         self.search_where(query, k, method, &Scope::default())
     }
 
@@ -407,7 +438,7 @@ impl Index {
         k: usize,
         method: Method,
         scope: &Scope,
-    ) -> Ranking {
+    ) -> io::Result<Ranking> {
         match method {
             Method::Hybrid => self.search_hybrid(query, k, scope),
             Method::Ecc => self.search_ecc(query, k, scope),
@@ -448,7 +479,7 @@ impl Index {
         method: Method,
         params: &SimilarityParams,
         scope: &Scope,
-    ) -> Ranking {
+    ) -> io::Result<Ranking> {
         if matches!(method, Method::D2 | Method::Lfd | Method::Geodesic) || *params == self.params {
             return self.search_where(query, k, method, scope);
         }
@@ -457,7 +488,12 @@ impl Index {
 
     /// Every entry's exact distance, no pruning: the reference the pruned search must match.
     /// Entries the method cannot compare (see [`Method::comparable`]) are left out.
-    pub fn search_exhaustive(&self, query: &Signature, k: usize, method: Method) -> Ranking {
+    pub fn search_exhaustive(
+        &self,
+        query: &Signature,
+        k: usize,
+        method: Method,
+    ) -> io::Result<Ranking> {
         self.exhaustive(query, k, method, &self.params, &Scope::default())
     }
 
@@ -468,19 +504,28 @@ impl Index {
         method: Method,
         params: &SimilarityParams,
         scope: &Scope,
-    ) -> Ranking {
+    ) -> io::Result<Ranking> {
         let query = Prepared::of(query);
-        let distance = |e: Entry| compared_distance(method, query.compared(), e.compared(), params);
+        let reads_light_field = matches!(method, Method::Hybrid | Method::Lfd);
+        let distance = |e: Entry| -> io::Result<f64> {
+            let lfd = if reads_light_field {
+                e.light_field()?
+            } else {
+                None
+            };
+            let entry = e.compared(lfd.as_ref());
+            Ok(compared_distance(method, query.compared(), entry, params))
+        };
         let admits = self.admits(scope);
         let mut scored: Vec<(f64, usize)> = self
             .entries
             .par_entries()
             .filter(|&e| admits(e) && e.comparable(method))
-            .map(|e| (distance(e), e.number()))
-            .collect();
+            .map(|e| Ok((distance(e)?, e.number())))
+            .collect::<io::Result<_>>()?;
         let evaluated = scored.len();
         let top = self.smallest(&mut scored, k);
-        Ranking {
+        Ok(Ranking {
             hits: top
                 .iter()
                 .map(|&(distance, i)| Hit {
@@ -490,12 +535,12 @@ impl Index {
                 .collect(),
             evaluated,
             pruned: 0,
-        }
+        })
     }
 
     /// SPEC §5 ranking with the ECC bounds: the centroid/projection bound for every entry,
     /// then the relaxed-EMD bound from the cost matrix, which the exact EMD reuses.
-    fn search_ecc(&self, query: &Signature, k: usize, scope: &Scope) -> Ranking {
+    fn search_ecc(&self, query: &Signature, k: usize, scope: &Scope) -> io::Result<Ranking> {
         let params = &self.params;
         let features = Features::of(&query.features);
         let summary = Summary::of(&features, params);
@@ -508,7 +553,7 @@ impl Index {
             |e, _| Some(lower_bound(&summary, e.summary(), params)),
             |e, kth| {
                 let costs = CostMatrix::new(&features, e.features(), params);
-                (costs.relaxed_bound(params) <= kth).then(|| compare_costs(&costs, params).sim)
+                Ok((costs.relaxed_bound(params) <= kth).then(|| compare_costs(&costs, params).sim))
             },
         )
     }
@@ -518,7 +563,7 @@ impl Index {
     /// bound, and the LFD's bound), coarse then fine ([`Index::cascade`]); an entry past the
     /// bound is rejected by the fused relaxed-EMD bound before its EMD is solved, and its LFD
     /// distance stops at the most the k-th distance leaves it ([`part_limit`]).
-    fn search_hybrid(&self, query: &Signature, k: usize, scope: &Scope) -> Ranking {
+    fn search_hybrid(&self, query: &Signature, k: usize, scope: &Scope) -> io::Result<Ranking> {
         let h = &self.params.hybrid;
         // The summaries depend on `W` only, which the hybrid's ECC part shares.
         let params = &self.params.hybrid_ecc();
@@ -534,10 +579,16 @@ impl Index {
             _ => None,
         };
         // `None` past `cutoff`.
-        let lfd_exact = |e: Entry, cutoff: f64| {
-            let (query, (_, ours)) = query.lfd.as_ref().zip(lfd_query.as_ref())?;
-            let theirs = e.lfd()?;
-            query.distance_with(ours, e.light_field()?, theirs, cutoff)
+        let lfd_exact = |e: Entry, cutoff: f64| -> io::Result<Option<f64>> {
+            let (Some((query, (_, ours))), Some(theirs)) =
+                (query.lfd.as_ref().zip(lfd_query.as_ref()), e.lfd())
+            else {
+                return Ok(None);
+            };
+            let Some(descriptor) = e.light_field()? else {
+                return Ok(None);
+            };
+            Ok(query.distance_with(ours, &descriptor, theirs, cutoff))
         };
         // Left out (as `fuse` would leave it) when it weighs nothing, as in the defaults.
         let d2 = |e: Entry| (h.d2.weight > 0.0).then(|| histogram_l1(&query.d2, e.d2()));
@@ -573,35 +624,38 @@ impl Index {
                 with_ecc(e).then(|| CostMatrix::new(&prepared.features, e.features(), params));
             let relaxed = costs.as_ref().map(|c| c.relaxed_bound(params));
             if fuse(h, [relaxed, d2, lfd_bound(e), geodesic]) > kth {
-                return None;
+                return Ok(None);
             }
             let lfd = match lfd_bound(e) {
                 // The LFD distance stops early past the most it may be within the k-th.
                 Some(_) => {
                     let cutoff = part_limit(h, [relaxed, d2, None, geodesic], 2, kth);
-                    Some(lfd_exact(e, cutoff)?)
+                    match lfd_exact(e, cutoff)? {
+                        Some(lfd) => Some(lfd),
+                        None => return Ok(None),
+                    }
                 }
                 None => None,
             };
             if fuse(h, [relaxed, d2, lfd, geodesic]) > kth {
-                return None;
+                return Ok(None);
             }
             let ecc = costs.map(|c| compare_costs(&c, params).sim);
-            Some(fuse(h, [ecc, d2, lfd, geodesic]))
+            Ok(Some(fuse(h, [ecc, d2, lfd, geodesic])))
         };
         self.cascade(k, self.admits(scope), coarse, fine, exact)
     }
 
     /// Light field ranking with [`crate::descriptor::lfd::LfdSummary::lower_bound`]; entries without a descriptor are
     /// left out (see [`Method::comparable`]), and a query without one ranks nothing.
-    fn search_lfd(&self, query: &Signature, k: usize, scope: &Scope) -> Ranking {
+    fn search_lfd(&self, query: &Signature, k: usize, scope: &Scope) -> io::Result<Ranking> {
         let Some(query) = &query.lfd else {
             // Nothing to compare with: no entry is ranked (callers check `comparable`).
-            return Ranking {
+            return Ok(Ranking {
                 hits: Vec::new(),
                 evaluated: 0,
                 pruned: 0,
-            };
+            });
         };
         let (sketch, summary) = (query.sketch(), query.summary());
         const KEPT: &str = "kept entries have one";
@@ -612,8 +666,8 @@ impl Index {
             |e| sketch.lower_bound(e.sketch().expect(KEPT)),
             |e, _| Some(summary.lower_bound(e.lfd().expect(KEPT))),
             |e, kth| {
-                let descriptor = e.light_field().expect(KEPT);
-                query.distance_with(&summary, descriptor, e.lfd().expect(KEPT), kth)
+                let descriptor = e.light_field()?.expect(KEPT);
+                Ok(query.distance_with(&summary, &descriptor, e.lfd().expect(KEPT), kth))
             },
         )
     }
@@ -629,19 +683,20 @@ impl Index {
         keep: impl Fn(Entry) -> bool + Sync,
         coarse: impl Fn(Entry) -> f64 + Sync,
         fine: impl Fn(Entry, f64) -> Option<f64> + Sync,
-        exact: impl Fn(Entry, f64) -> Option<f64> + Sync,
-    ) -> Ranking {
+        exact: impl Fn(Entry, f64) -> io::Result<Option<f64>> + Sync,
+    ) -> io::Result<Ranking> {
         let mut coarse_order: Vec<(f64, usize)> = self
             .entries
             .par_entries()
             .filter(|&e| keep(e))
             .map(|e| (coarse(e), e.number()))
             .collect();
-        let mut seeds: Vec<f64> = self
+        let seeds: Vec<Option<f64>> = self
             .smallest(&mut coarse_order, k)
             .par_iter()
-            .filter_map(|&(_, i)| exact(self.entries.get(i), f64::INFINITY))
-            .collect();
+            .map(|&(_, i)| exact(self.entries.get(i), f64::INFINITY))
+            .collect::<io::Result<_>>()?;
+        let mut seeds: Vec<f64> = seeds.into_iter().flatten().collect();
         seeds.sort_by(f64::total_cmp);
         let kth = seeds
             .get(k.wrapping_sub(1))
@@ -663,14 +718,14 @@ impl Index {
         k: usize,
         mut order: Vec<(f64, usize)>,
         rejected: usize,
-        exact: impl Fn(Entry, f64) -> Option<f64> + Sync,
-    ) -> Ranking {
+        exact: impl Fn(Entry, f64) -> io::Result<Option<f64>> + Sync,
+    ) -> io::Result<Ranking> {
         if k == 0 {
-            return Ranking {
+            return Ok(Ranking {
                 hits: Vec::new(),
                 evaluated: 0,
                 pruned: rejected + order.len(),
-            };
+            });
         }
         let mut best: Vec<Hit> = Vec::with_capacity(k + BATCH);
         let (mut evaluated, mut visited, mut sorted) = (0, 0, 0);
@@ -697,16 +752,17 @@ impl Index {
             if live.is_empty() {
                 break;
             }
-            let solved: Vec<Hit> = live
+            let solved: Vec<Option<Hit>> = live
                 .par_iter()
-                .filter_map(|&i| {
+                .map(|&i| {
                     let entry = self.entries.get(i);
-                    exact(entry, kth).map(|distance| Hit {
+                    Ok(exact(entry, kth)?.map(|distance| Hit {
                         id: entry.id().to_string(),
                         distance,
-                    })
+                    }))
                 })
-                .collect();
+                .collect::<io::Result<_>>()?;
+            let solved: Vec<Hit> = solved.into_iter().flatten().collect();
             evaluated += solved.len();
             best.extend(solved);
             sort_hits(&mut best);
@@ -715,11 +771,11 @@ impl Index {
                 break;
             }
         }
-        Ranking {
+        Ok(Ranking {
             hits: best,
             evaluated,
             pruned: rejected + order.len() - evaluated,
-        }
+        })
     }
 
     /// Moves the `k` smallest of `scored` (by score, ties by id) to its front, sorted, and

@@ -7,13 +7,15 @@
 //! no lock is ever held on an async thread. Records are a persistent map (`imbl`) and index
 //! entries are kept in shared chunks, so a new snapshot copies pointers and a chunk or two.
 
+use std::path::PathBuf;
 use std::sync::Arc;
 
 use arc_swap::ArcSwap;
 
+use crate::api::error::AppError;
 use crate::model::{ModelId, ModelRecord};
 use crate::params::{Params, SimilarityParams};
-use crate::rank::Index;
+use crate::rank::{Index, Row};
 use crate::signature::Signature;
 
 /// One consistent state of the catalogue.
@@ -24,16 +26,19 @@ pub struct Snapshot {
 }
 
 impl Snapshot {
-    pub fn empty(similarity: SimilarityParams) -> Self {
+    /// An empty catalogue whose index shelves light field descriptors in `shelf_dir`, or
+    /// in the system's temporary folder.
+    pub fn empty(similarity: SimilarityParams, shelf_dir: Option<PathBuf>) -> Self {
         Self {
             records: imbl::OrdMap::new(),
-            index: Index::new(similarity),
+            index: Index::shelved_in(similarity, shelf_dir.unwrap_or_else(std::env::temp_dir)),
         }
     }
 
-    /// Adds or replaces a model.
-    pub fn put(&mut self, record: ModelRecord, signature: &Signature) {
-        self.index.insert(record.id.clone(), signature);
+    /// Adds or replaces a model, with its index entry made by [`Catalog::row`] or this
+    /// snapshot's index.
+    pub fn put(&mut self, record: ModelRecord, row: Row) {
+        self.index.put(row);
         self.records.insert(record.id.clone(), Arc::new(record));
     }
 
@@ -80,9 +85,16 @@ impl Catalog {
         len
     }
 
+    /// The index entry of a model about to be stored: made first, since shelving its light
+    /// field descriptor may fail (a full disk) and the store must then stay unchanged.
+    pub fn row(&self, id: &ModelId, signature: &Signature) -> Result<Row, AppError> {
+        let index = &self.current.load().index;
+        index.row(id.as_str(), signature).map_err(AppError::index)
+    }
+
     /// Adds or replaces a model; returns the number of models.
-    pub fn put(&self, record: ModelRecord, signature: &Signature) -> usize {
-        self.update(|s| s.put(record, signature))
+    pub fn put(&self, record: ModelRecord, row: Row) -> usize {
+        self.update(|s| s.put(record, row))
     }
 
     /// Replaces a model's record, its signature unchanged.

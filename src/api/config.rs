@@ -17,6 +17,10 @@ pub struct Config {
     pub addr: SocketAddr,
     /// Folder of the sled store.
     pub data: PathBuf,
+    /// Folder of the ranking index's file of light field descriptors, kept out of memory and
+    /// made again at each start (`rank::shelf`); a disk, not a memory file system. Default:
+    /// `data` when serving from a store there, else the system's temporary folder.
+    pub shelf_dir: Option<PathBuf>,
     /// Largest request body in bytes (uploads); larger ones get 413.
     pub max_body_bytes: usize,
     /// Extractions running at once.
@@ -69,6 +73,7 @@ impl Default for Config {
         Self {
             addr: SocketAddr::from(([127, 0, 0, 1], 8080)),
             data: PathBuf::from("salient-data"),
+            shelf_dir: None,
             max_body_bytes: 64 << 20,
             workers: std::thread::available_parallelism().map_or(2, |n| n.get()),
             queue_depth: 16,

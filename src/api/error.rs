@@ -70,6 +70,12 @@ pub struct ErrorDetail {
 }
 
 impl AppError {
+    /// The ranking index's shelf failed (`rank::shelf`): by its kind only, since an I/O
+    /// error's text may name a file.
+    pub fn index(e: std::io::Error) -> Self {
+        AppError::Internal(format!("ranking index shelf: {}", e.kind()))
+    }
+
     pub fn bad_request(code: &'static str, message: impl Into<String>) -> Self {
         AppError::BadRequest {
             code,

@@ -106,6 +106,8 @@ pub enum StartError {
     },
     #[error("API keys: {0}")]
     Keys(#[from] KeyError),
+    #[error("cannot write the ranking index's shelf (see `shelf_dir`): {0}")]
+    Shelf(std::io::Error),
     #[error("refusing to serve {0} without API keys: anyone who can reach it could add and delete models. Set SALIENT_API_KEYS=write:KEY (or admin:KEY), or pass --keys FILE (make a key with `salient keys new --scope write --label NAME --file FILE`); or, on a network you trust, --allow-anonymous")]
     Anonymous(std::net::SocketAddr),
 }
@@ -119,7 +121,8 @@ impl App {
         if keys.is_empty() && !config.addr.ip().is_loopback() && !config.allow_anonymous {
             return Err(StartError::Anonymous(config.addr));
         }
-        let mut snapshot = Snapshot::empty(config.params.similarity.clone());
+        let mut snapshot =
+            Snapshot::empty(config.params.similarity.clone(), config.shelf_dir.clone());
         let (mut stale_parameters, mut missing_descriptor) = (0, 0);
         for loaded in store.load_all() {
             let loaded = loaded?;
@@ -134,7 +137,11 @@ impl App {
                 Some(Staleness::MissingDescriptor) => missing_descriptor += 1,
                 None => {}
             }
-            snapshot.put(loaded.record, &signature);
+            let row = snapshot
+                .index
+                .row(loaded.record.id.as_str(), &signature)
+                .map_err(StartError::Shelf)?;
+            snapshot.put(loaded.record, row);
         }
         let models = snapshot.records.len();
         let catalog = Catalog::new(snapshot);

@@ -68,6 +68,7 @@ pub async fn add_model(
     let signature = app.extract(upload.clone()).await?;
     let mut record = ModelRecord::new(id, wanted, &upload, &signature);
     let bytes = signature.to_bytes();
+    let row = app.catalog.row(&record.id, &signature)?;
 
     let _write = app.writes.lock().await;
     let (to_store, stored_upload) = (record.clone(), upload.clone());
@@ -77,7 +78,7 @@ pub async fn add_model(
     if let Some(previous) = &previous {
         record.created_unix = previous.created_unix;
     }
-    let models = app.catalog.put(record.clone(), &signature);
+    let models = app.catalog.put(record.clone(), row);
     app.set_model_count(models);
     let status = if previous.is_some() {
         StatusCode::OK

@@ -222,12 +222,13 @@ async fn reextract(app: &Arc<App>, id: &ModelId) -> Result<(), String> {
     let mut record = (*current).clone();
     record.describe(&signature);
     let (stored, bytes) = (record.clone(), signature.to_bytes());
+    let row = app.catalog.row(id, &signature).map_err(hidden)?;
     let updated = app
         .with_store(move |store| store.update_model(&stored, &bytes))
         .await
         .map_err(hidden)?;
     if updated {
-        app.catalog.put(record, &signature);
+        app.catalog.put(record, row);
     }
     Ok(())
 }

@@ -226,7 +226,7 @@ async fn rank(
                 pruned,
             } = catalog
                 .index
-                .search_with(&query, k, method, &params, &scope);
+                .search_with(&query, k, method, &params, &scope)?;
             let left_out = catalog.index.incomparable(method, &scope);
             let partial = catalog.index.partial(method, &scope);
             let results = hits
@@ -245,9 +245,10 @@ async fn rank(
                     }
                 })
                 .collect::<Vec<_>>();
-            (results, evaluated, pruned, left_out, partial)
+            Ok((results, evaluated, pruned, left_out, partial))
         })
-        .await?;
+        .await?
+        .map_err(AppError::index)?;
     let search_seconds = search_clock.elapsed().as_secs_f64();
     app.metrics.search_seconds.observe(search_seconds);
     let (mut results, evaluated, pruned, left_out, partial) = results;

@@ -113,7 +113,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                     Source::Cached => cached += 1,
                     Source::Extracted => extracted += 1,
                 }
-                index.insert(id, &signature);
+                index
+                    .insert(id, &signature)
+                    .context("cannot write the index's file in the temporary folder")?;
             }
             Err(error) => {
                 progress.suspend(|| eprintln!("skipping {id}: {error}"));
@@ -129,7 +131,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let index_seconds = clock.elapsed().as_secs_f64();
 
     let clock = Instant::now();
-    let ranking = index.search(&query, args.k, args.method);
+    let ranking = index
+        .search(&query, args.k, args.method)
+        .context("cannot read the index's file in the temporary folder")?;
     let search_seconds = clock.elapsed().as_secs_f64();
     let results: Vec<Row> = ranking
         .hits

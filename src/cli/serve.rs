@@ -103,7 +103,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         )
         .with_writer(std::io::stderr)
         .init();
-    let config = args.config()?;
+    let mut config = args.config()?;
+    config.shelf_dir.get_or_insert_with(|| config.data.clone());
     let store = SledStore::open(&config.data)
         .with_context(|| format!("cannot open the store in {}", config.data.display()))?;
     let addr = config.addr;

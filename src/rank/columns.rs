@@ -7,6 +7,7 @@
 //! and TLB misses). Chunks are shared between copies of the index (`Arc`) and copied on
 //! write, so publishing a changed copy copies one or two chunks, not the whole index.
 
+use std::io;
 use std::sync::Arc;
 
 use rayon::prelude::*;
@@ -18,6 +19,7 @@ use crate::params::{Params, SimilarityParams};
 use crate::signature::{Signature, Staleness};
 use crate::similarity::{Features, Summary};
 
+use super::shelf::Slot;
 use super::{Compared, Holds, Method};
 
 /// Entries per chunk: a copy on write moves about a megabyte.
@@ -78,7 +80,7 @@ struct Chunk {
     ids: Vec<Arc<str>>,
     extractions: Vec<Arc<Params>>,
     features: Vec<Features>,
-    light_fields: Vec<Option<LightFieldDescriptor>>,
+    light_fields: Vec<Option<Arc<Slot>>>,
     summaries: Vec<Summary>,
     sketches: Vec<Option<LfdSketch>>,
     lfd: Vec<Option<LfdSummary>>,
@@ -93,7 +95,7 @@ pub struct Row {
     id: Arc<str>,
     extraction: Arc<Params>,
     features: Features,
-    light_field: Option<LightFieldDescriptor>,
+    light_field: Option<Arc<Slot>>,
     d2: Vec<f32>,
     summary: Summary,
     centroid: (Vec<f32>, Vec<f32>),
@@ -103,11 +105,11 @@ pub struct Row {
 }
 
 impl Row {
-    /// `extraction` is `signature.params`, shared with other entries.
+    /// `light_field` is `signature.lfd` shelved.
     pub fn new(
         id: Arc<str>,
         signature: &Signature,
-        extraction: Arc<Params>,
+        light_field: Option<Arc<Slot>>,
         params: &SimilarityParams,
     ) -> Self {
         let features = Features::of(&signature.features);
@@ -118,15 +120,26 @@ impl Row {
             features,
             sketch: signature.lfd.as_ref().map(|d| d.sketch()),
             lfd: signature.lfd.as_ref().map(|d| d.summary()),
-            light_field: signature.lfd.clone(),
+            light_field,
             d2: signature.d2.clone(),
             geodesic: signature
                 .geodesic
                 .as_ref()
                 .map(GeodesicDescriptor::cumulative),
             id,
-            extraction,
+            extraction: Arc::new(signature.params.clone()),
         }
+    }
+
+    /// The parameters it was extracted with, to share with other rows.
+    pub fn extraction(&self) -> &Arc<Params> {
+        &self.extraction
+    }
+
+    /// Shares `extraction`, equal to this row's.
+    pub fn share(&mut self, extraction: Arc<Params>) {
+        debug_assert!(*extraction == *self.extraction);
+        self.extraction = extraction;
     }
 
     pub fn id(&self) -> &Arc<str> {
@@ -203,17 +216,24 @@ impl<'a> Entry<'a> {
         &self.chunk.features[self.slot]
     }
 
-    /// The light field descriptor, for the LFD's exact distance.
-    pub fn light_field(self) -> Option<&'a LightFieldDescriptor> {
-        self.chunk.light_fields[self.slot].as_ref()
+    /// The light field descriptor, for the LFD's exact distance: read from the shelf.
+    pub fn light_field(self) -> io::Result<Option<LightFieldDescriptor>> {
+        self.chunk.light_fields[self.slot]
+            .as_ref()
+            .map(|slot| slot.get())
+            .transpose()
     }
 
-    /// What every method compares, for a distance without bounds.
-    pub fn compared(self) -> Compared<'a> {
+    /// What every method compares, for a distance without bounds, with the light field
+    /// descriptor read by the caller if it needs one.
+    pub fn compared<'b>(self, lfd: Option<&'b LightFieldDescriptor>) -> Compared<'b>
+    where
+        'a: 'b,
+    {
         Compared {
             features: self.features(),
             d2: self.d2(),
-            lfd: self.light_field(),
+            lfd,
             geodesic: self.geodesic(),
         }
     }

@@ -790,3 +790,24 @@ async fn a_patch_edits_fields_without_re_extracting() {
     )
     .await;
 }
+
+/// The index's entry is made before the store is written: when its shelf cannot be written,
+/// the upload fails with an internal error that names no path, and nothing is stored.
+#[tokio::test]
+async fn an_unwritable_index_shelf_fails_the_upload_and_stores_nothing() {
+    let dir = tempfile::tempdir().unwrap();
+    let missing = dir.path().join("missing");
+    let store = Arc::new(InMemoryStore::new());
+    let config = Config {
+        shelf_dir: Some(missing.clone()),
+        ..Config::default()
+    };
+    let app = TestApp::build(config, store.clone(), None);
+    let response = app
+        .add("id=horse", "model/obj", fixture("capod_horse_m155.obj"))
+        .await;
+    assert!(!response.text().contains(missing.to_str().unwrap()));
+    expect_error(response, StatusCode::INTERNAL_SERVER_ERROR, "internal").await;
+    assert!(store.is_empty());
+    assert!(app.listed_ids().await.is_empty());
+}

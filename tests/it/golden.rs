@@ -138,7 +138,10 @@ async fn release_0_1_0_store_opens_lists_serves_and_ranks() {
         assert_eq!(ranked.len(), old.len(), "{method}");
         for ((id, d), (old_id, old_d)) in ranked.iter().zip(&old) {
             assert_eq!(id, old_id, "{method}");
-            assert!((d - old_d).abs() <= 1e-7 * old_d, "{method} {id}: {d} vs {old_d}");
+            assert!(
+                (d - old_d).abs() <= 1e-7 * old_d,
+                "{method} {id}: {d} vs {old_d}"
+            );
         }
         assert!(!ranked.is_empty());
     }

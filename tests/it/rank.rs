@@ -20,12 +20,14 @@ fn pruning_never_changes_the_top_k() {
         params.ecc_weight = w;
         let mut index = Index::new(params.clone());
         for (id, s) in &collection {
-            index.insert(id.clone(), s);
+            index.insert(id.clone(), s).expect("shelved");
         }
         for (_, query) in &queries {
             for k in [1, 5, 10, 50] {
-                let fast = index.search(query, k, Method::Ecc);
-                let full = index.search_exhaustive(query, k, Method::Ecc);
+                let fast = index.search(query, k, Method::Ecc).expect("ranks");
+                let full = index
+                    .search_exhaustive(query, k, Method::Ecc)
+                    .expect("ranks");
                 assert_eq!(fast.hits, full.hits, "k = {k}, penalty {penalty}, W = {w}");
                 assert_eq!(fast.evaluated + fast.pruned, collection.len());
                 pruned += fast.pruned;
@@ -45,19 +47,23 @@ fn ties_are_broken_by_id_and_methods_agree_on_self() {
     let mut index = Index::new(params);
     let query = collection[7].1.clone();
     // Two copies of the query under ids that sort before and after it.
-    index.insert("zz-copy", &query);
+    index.insert("zz-copy", &query).expect("shelved");
     for (id, s) in &collection {
-        index.insert(id.clone(), s);
+        index.insert(id.clone(), s).expect("shelved");
     }
-    index.insert("aa-copy", &query);
+    index.insert("aa-copy", &query).expect("shelved");
     for method in [Method::Ecc, Method::D2] {
-        let ranking = index.search(&query, 3, method);
+        let ranking = index.search(&query, 3, method).expect("ranks");
         let ids: Vec<&str> = ranking.hits.iter().map(|h| h.id.as_str()).collect();
         assert_eq!(ids, ["aa-copy", "m000007", "zz-copy"], "{method}");
         assert!(ranking.hits.iter().all(|h| h.distance == 0.0));
     }
-    assert!(index.search(&query, 0, Method::Ecc).hits.is_empty());
-    let everything = index.search(&query, 1000, Method::Ecc);
+    assert!(index
+        .search(&query, 0, Method::Ecc)
+        .expect("ranks")
+        .hits
+        .is_empty());
+    let everything = index.search(&query, 1000, Method::Ecc).expect("ranks");
     assert_eq!(everything.hits.len(), index.len());
 }
 
@@ -69,13 +75,13 @@ fn lfd_ranks_by_light_field_distance_and_skips_signatures_without_one() {
     let signatures = generated_signatures(&params);
     let mut index = Index::new(params.similarity.clone());
     for (id, s) in &signatures {
-        index.insert(*id, s);
+        index.insert(*id, s).expect("shelved");
     }
     let mut old = signatures[3].1.clone();
     old.lfd = None;
-    index.insert("old-bowl", &old);
+    index.insert("old-bowl", &old).expect("shelved");
     let query = &signatures[0].1;
-    let ranking = index.search(query, 10, Method::Lfd);
+    let ranking = index.search(query, 10, Method::Lfd).expect("ranks");
     let mut expected: Vec<(f64, &str)> = signatures
         .iter()
         .map(|(id, s)| {
@@ -101,8 +107,10 @@ fn lfd_ranks_by_light_field_distance_and_skips_signatures_without_one() {
     // The bound-pruned ranking is the full scan's for every k and query.
     for (_, query) in &signatures {
         for k in 1..=4 {
-            let fast = index.search(query, k, Method::Lfd);
-            let full = index.search_exhaustive(query, k, Method::Lfd);
+            let fast = index.search(query, k, Method::Lfd).expect("ranks");
+            let full = index
+                .search_exhaustive(query, k, Method::Lfd)
+                .expect("ranks");
             assert_eq!(fast.hits, full.hits, "k = {k}");
             assert_eq!(fast.evaluated + fast.pruned, 4);
         }
@@ -110,7 +118,11 @@ fn lfd_ranks_by_light_field_distance_and_skips_signatures_without_one() {
     // A query without a descriptor ranks nothing.
     let mut bare = signatures[0].1.clone();
     bare.lfd = None;
-    assert!(index.search(&bare, 3, Method::Lfd).hits.is_empty());
+    assert!(index
+        .search(&bare, 3, Method::Lfd)
+        .expect("ranks")
+        .hits
+        .is_empty());
 }
 
 fn generated_signatures(params: &Params) -> Vec<(&'static str, Signature)> {
@@ -219,11 +231,11 @@ fn hybrid_weights_load_from_parameters() {
     let signatures = generated_signatures(&d2_only);
     let mut index = Index::new(d2_only.similarity.clone());
     for (id, s) in &signatures {
-        index.insert(*id, s);
+        index.insert(*id, s).expect("shelved");
     }
     for (_, query) in &signatures {
-        let hybrid = index.search(query, 4, Method::Hybrid);
-        let d2 = index.search(query, 4, Method::D2);
+        let hybrid = index.search(query, 4, Method::Hybrid).expect("ranks");
+        let d2 = index.search(query, 4, Method::D2).expect("ranks");
         let ids =
             |r: &salient::rank::Ranking| r.hits.iter().map(|h| h.id.clone()).collect::<Vec<_>>();
         assert_eq!(ids(&hybrid), ids(&d2));
@@ -286,7 +298,7 @@ fn hybrid_pruning_never_changes_the_top_k() {
         params.hybrid = hybrid.clone();
         let mut index = Index::new(params);
         for (id, s) in &collection {
-            index.insert(id.clone(), s);
+            index.insert(id.clone(), s).expect("shelved");
         }
         assert_eq!(
             index.partial(Method::Hybrid, &Scope::default()),
@@ -294,8 +306,10 @@ fn hybrid_pruning_never_changes_the_top_k() {
         );
         for (_, query) in &queries {
             for k in [1, 10, 50] {
-                let fast = index.search(query, k, Method::Hybrid);
-                let full = index.search_exhaustive(query, k, Method::Hybrid);
+                let fast = index.search(query, k, Method::Hybrid).expect("ranks");
+                let full = index
+                    .search_exhaustive(query, k, Method::Hybrid)
+                    .expect("ranks");
                 assert_eq!(fast.hits, full.hits, "k = {k}, {hybrid:?}");
                 assert_eq!(fast.evaluated + fast.pruned, collection.len());
                 pruned += fast.pruned;
@@ -325,7 +339,7 @@ fn entries_survive_changes_across_chunks() {
     synthetic::with_descriptors(&mut collection, 30, 9);
     let mut index = Index::new(Params::default().similarity);
     for (id, s) in &collection {
-        index.insert(id.clone(), s);
+        index.insert(id.clone(), s).expect("shelved");
     }
     // Removed: the first, the last, and a run across the first chunk boundary.
     let removed: Vec<&str> = [0, collection.len() - 1]
@@ -339,7 +353,7 @@ fn entries_survive_changes_across_chunks() {
     }
     // Replaced: an entry of the last chunk takes another's signature.
     let (replaced, with) = (&collection[2100].0, &collection[6].1);
-    index.insert(replaced.clone(), with);
+    index.insert(replaced.clone(), with).expect("shelved");
     assert_eq!(index.len(), collection.len() - removed.len());
     let params = Params::default();
     for (n, (id, s)) in collection.iter().enumerate() {
@@ -353,14 +367,16 @@ fn entries_survive_changes_across_chunks() {
                 without: None,
                 keep: Some(&only),
             };
-            let found = index.search_where(held, 1, Method::Hybrid, &scope);
+            let found = index
+                .search_where(held, 1, Method::Hybrid, &scope)
+                .expect("ranks");
             assert_eq!(found.hits[0].distance, 0.0, "{id}");
         }
     }
     let query = &collection[6].1;
     for method in Method::ALL {
-        let fast = index.search(query, 10, method);
-        let full = index.search_exhaustive(query, 10, method);
+        let fast = index.search(query, 10, method).expect("ranks");
+        let full = index.search_exhaustive(query, 10, method).expect("ranks");
         assert_eq!(fast.hits, full.hits, "{method}");
     }
     // `similar` of model 6 leaves it out, not its copy under another id.
@@ -370,7 +386,9 @@ fn entries_survive_changes_across_chunks() {
         without: Some(asked),
         keep: Some(&even),
     };
-    let ranking = index.search_where(query, 10, Method::Hybrid, &scope);
+    let ranking = index
+        .search_where(query, 10, Method::Hybrid, &scope)
+        .expect("ranks");
     assert_eq!(ranking.hits[0].id, *replaced);
     assert_eq!(ranking.hits[0].distance, 0.0);
     assert!(ranking.hits.iter().all(|h| even(&h.id) && h.id != asked));
@@ -379,4 +397,66 @@ fn entries_survive_changes_across_chunks() {
         .filter(|(id, _)| even(id) && id != asked && !removed.contains(&id.as_str()))
         .count();
     assert_eq!(ranking.evaluated + ranking.pruned, in_scope);
+}
+
+/// Light field descriptors live on the index's shelf (a file): an older copy of the index
+/// keeps ranking with the descriptors of entries removed from a newer one, and slots freed
+/// when the last copy goes are reused without mixing descriptors up.
+#[test]
+fn shelved_light_fields_outlive_the_entries_removed_from_newer_copies() {
+    let mut collection = synthetic::collection(400, 20, 21);
+    synthetic::with_descriptors(&mut collection, 20, 22);
+    let (first, second) = collection.split_at(200);
+    let params = Params::default().similarity;
+    let mut index = Index::new(params.clone());
+    for (id, s) in first {
+        index.insert(id.clone(), s).expect("shelved");
+    }
+    let agrees = |index: &Index, members: &[(String, Signature)], query: &Signature| {
+        let ranking = index.search(query, 5, Method::Lfd).expect("ranks");
+        let mut expected: Vec<(f64, &str)> = members
+            .iter()
+            .map(|(id, s)| (distance(Method::Lfd, query, s, &params), id.as_str()))
+            .collect();
+        expected.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(b.1)));
+        let got: Vec<(f64, &str)> = ranking
+            .hits
+            .iter()
+            .map(|h| (h.distance, h.id.as_str()))
+            .collect();
+        assert_eq!(got, expected[..5]);
+    };
+    let older = index.clone();
+    for (id, _) in &first[..100] {
+        index.remove(id);
+    }
+    for (id, s) in &second[..100] {
+        index.insert(id.clone(), s).expect("shelved");
+    }
+    let newer: Vec<_> = first[100..].iter().chain(&second[..100]).cloned().collect();
+    for query in [&first[3].1, &second[5].1, &first[150].1] {
+        agrees(&older, first, query);
+        agrees(&index, &newer, query);
+    }
+    // The older copy's slots are free now; the next descriptors take them.
+    drop(older);
+    for (id, s) in &second[100..] {
+        index.insert(id.clone(), s).expect("shelved");
+    }
+    let newest: Vec<_> = first[100..].iter().chain(second).cloned().collect();
+    for query in [&first[3].1, &second[150].1, &first[120].1] {
+        agrees(&index, &newest, query);
+    }
+}
+
+/// A shelf that cannot be written is an error, not a panic.
+#[test]
+fn an_unwritable_shelf_is_an_error() {
+    let mut collection = synthetic::collection(3, 1, 23);
+    synthetic::with_descriptors(&mut collection, 1, 24);
+    let dir = tempfile::tempdir().unwrap();
+    let missing = dir.path().join("missing");
+    let mut index = Index::shelved_in(Params::default().similarity, missing);
+    assert!(index.insert("a", &collection[0].1).is_err());
+    assert!(index.is_empty());
 }

@@ -35,6 +35,8 @@ pub use zernike::{zernike_magnitudes, ZERNIKE_COUNT};
 pub const COEFFICIENTS: usize = ZERNIKE_COUNT + FOURIER_COUNT;
 /// Images per model.
 pub const IMAGES: usize = LIGHT_FIELDS * VIEWS;
+/// Bytes of a descriptor's coefficients, unpadded ([`LightFieldDescriptor::packed`]).
+pub const PACKED: usize = IMAGES * COEFFICIENTS;
 /// Bytes per image in memory: padded so that distance loops run on whole vector registers.
 const PADDED: usize = 48;
 /// The largest light-field distance: every coefficient of every view at opposite ends.
@@ -138,6 +140,28 @@ impl LightFieldDescriptor {
             .map(|i| {
                 let axis = cameras.direction(i / VIEWS, i % VIEWS);
                 ImageFeatures::of(&Silhouette::render(&mesh.positions, &mesh.triangles, axis))
+            })
+            .collect();
+        Self { images }
+    }
+
+    /// The coefficients of every image, in order, without padding.
+    pub fn packed(&self) -> [u8; PACKED] {
+        let mut packed = [0u8; PACKED];
+        for (out, image) in packed.chunks_exact_mut(COEFFICIENTS).zip(&self.images) {
+            out.copy_from_slice(image.coefficients());
+        }
+        packed
+    }
+
+    /// The inverse of [`LightFieldDescriptor::packed`].
+    pub fn unpacked(packed: &[u8; PACKED]) -> Self {
+        let images = packed
+            .chunks_exact(COEFFICIENTS)
+            .map(|c| {
+                let mut bytes = [0u8; PADDED];
+                bytes[..COEFFICIENTS].copy_from_slice(c);
+                ImageFeatures(bytes)
             })
             .collect();
         Self { images }
