@@ -508,10 +508,14 @@ fn main() {
                 }),
             );
         }
+        // Again after every query and ingest: what serving holds, not only what loading did.
+        let rss_after_mib = server.resident_mib().unwrap_or(f64::NAN);
+        eprintln!("server with {size} models: {rss_after_mib:.0} MiB resident after the runs");
         figures.push(json!({
             "models": size,
             "real_signatures": sources.real,
             "rss_mib": rss_mib,
+            "rss_after_mib": rss_after_mib,
             "startup_s": startup_s,
             "methods": methods,
             "ingest_during_uploads_per_s": during_rates.iter().sum::<f64>() / during_rates.len() as f64,

@@ -22,6 +22,10 @@ pub struct Args {
     /// Folder of the store (created if missing).
     #[arg(long, env = "SALIENT_DATA")]
     data: Option<PathBuf>,
+    /// Folder of the ranking index's file of light field descriptors (made again at each
+    /// start; on a disk, not a memory file system). Default: the store's folder.
+    #[arg(long, env = "SALIENT_SHELF_DIR")]
+    shelf_dir: Option<PathBuf>,
     /// TOML configuration file (every field of the server configuration).
     #[arg(long, env = "SALIENT_CONFIG")]
     config: Option<PathBuf>,
@@ -72,6 +76,10 @@ impl Args {
         let a = self.clone();
         config.addr = a.addr.unwrap_or(config.addr);
         config.data = a.data.unwrap_or(config.data);
+        config.shelf_dir = a
+            .shelf_dir
+            .or(config.shelf_dir)
+            .or_else(|| Some(config.data.clone()));
         config.workers = a.workers.unwrap_or(config.workers);
         config.queue_depth = a.queue_depth.unwrap_or(config.queue_depth);
         config.max_body_bytes = a.max_body_bytes.unwrap_or(config.max_body_bytes);
@@ -103,8 +111,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         )
         .with_writer(std::io::stderr)
         .init();
-    let mut config = args.config()?;
-    config.shelf_dir.get_or_insert_with(|| config.data.clone());
+    let config = args.config()?;
     let store = SledStore::open(&config.data)
         .with_context(|| format!("cannot open the store in {}", config.data.display()))?;
     let addr = config.addr;
