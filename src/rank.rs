@@ -10,7 +10,8 @@
 //! [`crate::descriptor::lfd::LfdSketch`]) and compared with the k-th distance among the
 //! entries it ranks first, it leaves the tighter bounds to a few. The hybrid's bounds are the
 //! weighted sums of its parts' ([`fuse`]). Entries are kept by column in chunks ([`columns`]),
-//! so that a pass over all of them streams through memory.
+//! so that a pass over all of them streams through memory; the light field descriptors, read
+//! only for the few candidates the bounds leave, are kept in a file (`rank/shelf.rs`).
 
 use std::fmt;
 use std::io;
@@ -310,7 +311,8 @@ pub struct Ranking {
     pub pruned: usize,
 }
 
-/// An in-memory collection of signatures with what ranking precomputes for each.
+/// What ranking compares of each model of a collection, with what it precomputes for its
+/// bounds; the signatures themselves stay in the store.
 ///
 /// Summaries for the lower bound depend on the ground-distance weight `W`, so an index is
 /// built for one [`SimilarityParams`]. Cloning is cheap (entries are shared, the id map is
@@ -339,7 +341,7 @@ impl Index {
         Self::shelved_in(params, std::env::temp_dir())
     }
 
-    /// An index whose light field descriptors are shelved in a file in `dir` ([`shelf`]),
+    /// An index whose light field descriptors are shelved in a file in `dir` (`rank/shelf.rs`),
     /// created with the first: a directory on disk, not a memory file system, for their
     /// pages to be reclaimable.
     pub fn shelved_in(params: SimilarityParams, dir: PathBuf) -> Self {

@@ -1,5 +1,5 @@
 //! The HTTP retrieval service (SPEC §8; `openapi.yaml` is the contract): an axum router over
-//! a [`Store`], an in-memory [`Index`] of every stored signature, and the bounded extraction
+//! a [`Store`], a ranking [`crate::rank::Index`] of every stored model, and the bounded extraction
 //! [`pool::Pool`]. Handlers only translate between HTTP and the library.
 
 pub mod auth;

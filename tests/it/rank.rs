@@ -5,7 +5,7 @@ use crate::shapes;
 use crate::synthetic;
 
 use salient::params::{HybridParams, Term};
-use salient::rank::{distance, fuse, Index, Method, Scope};
+use salient::rank::{distance, fuse, Index, Method, Ranking, Scope};
 use salient::similarity::{centroid_bound, d2_distance, lower_bound, Features, Summary};
 use salient::{Params, Signature};
 
@@ -82,25 +82,11 @@ fn lfd_ranks_by_light_field_distance_and_skips_signatures_without_one() {
     index.insert("old-bowl", &old).expect("shelved");
     let query = &signatures[0].1;
     let ranking = index.search(query, 10, Method::Lfd).expect("ranks");
-    let mut expected: Vec<(f64, &str)> = signatures
-        .iter()
-        .map(|(id, s)| {
-            (
-                query
-                    .lfd
-                    .as_ref()
-                    .unwrap()
-                    .distance(s.lfd.as_ref().unwrap()),
-                *id,
-            )
-        })
-        .collect();
-    expected.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(b.1)));
-    let got: Vec<(f64, &str)> = ranking
-        .hits
-        .iter()
-        .map(|h| (h.distance, h.id.as_str()))
-        .collect();
+    let expected = in_order(signatures.iter().map(|(id, s)| {
+        let lfd = query.lfd.as_ref().unwrap();
+        (lfd.distance(s.lfd.as_ref().unwrap()), *id)
+    }));
+    let got = hits(&ranking);
     assert_eq!(got, expected);
     assert_eq!(got[0], (0.0, "cone"));
     assert_eq!(ranking.evaluated, 4);
@@ -414,17 +400,12 @@ fn shelved_light_fields_outlive_the_entries_removed_from_newer_copies() {
     }
     let agrees = |index: &Index, members: &[(String, Signature)], query: &Signature| {
         let ranking = index.search(query, 5, Method::Lfd).expect("ranks");
-        let mut expected: Vec<(f64, &str)> = members
-            .iter()
-            .map(|(id, s)| (distance(Method::Lfd, query, s, &params), id.as_str()))
-            .collect();
-        expected.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(b.1)));
-        let got: Vec<(f64, &str)> = ranking
-            .hits
-            .iter()
-            .map(|h| (h.distance, h.id.as_str()))
-            .collect();
-        assert_eq!(got, expected[..5]);
+        let expected = in_order(
+            members
+                .iter()
+                .map(|(id, s)| (distance(Method::Lfd, query, s, &params), id.as_str())),
+        );
+        assert_eq!(hits(&ranking), expected[..5]);
     };
     let older = index.clone();
     for (id, _) in &first[..100] {
@@ -459,4 +440,20 @@ fn an_unwritable_shelf_is_an_error() {
     let mut index = Index::shelved_in(Params::default().similarity, missing);
     assert!(index.insert("a", &collection[0].1).is_err());
     assert!(index.is_empty());
+}
+
+/// Distances and ids sorted as a ranking orders them: by distance, ties by id.
+fn in_order<'a>(scored: impl Iterator<Item = (f64, &'a str)>) -> Vec<(f64, &'a str)> {
+    let mut scored: Vec<_> = scored.collect();
+    scored.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(b.1)));
+    scored
+}
+
+/// A ranking's distances and ids.
+fn hits(ranking: &Ranking) -> Vec<(f64, &str)> {
+    ranking
+        .hits
+        .iter()
+        .map(|h| (h.distance, h.id.as_str()))
+        .collect()
 }
