@@ -508,7 +508,12 @@ impl Index {
         scope: &Scope,
     ) -> io::Result<Ranking> {
         let query = Prepared::of(query);
-        let reads_light_field = matches!(method, Method::Hybrid | Method::Lfd);
+        // A read from the shelf per entry: only for a method that weighs the LFD.
+        let reads_light_field = match method {
+            Method::Lfd => true,
+            Method::Hybrid => params.hybrid.lfd.weight > 0.0,
+            Method::Ecc | Method::D2 | Method::Geodesic => false,
+        };
         let distance = |e: Entry| -> io::Result<f64> {
             let lfd = if reads_light_field {
                 e.light_field()?

@@ -211,11 +211,6 @@ pub fn explain(
     (costs.similarity(emd, params), matches)
 }
 
-/// The baseline's distance: half the L1 distance of the global D2 histograms (SPEC §6).
-pub fn d2_distance(p: &Signature, q: &Signature) -> f64 {
-    histogram_l1(&p.d2, &q.d2)
-}
-
 /// What [`lower_bound`] needs of a signature, computed once per stored model.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Summary {

@@ -6,7 +6,7 @@ use crate::synthetic;
 
 use salient::params::{HybridParams, Term};
 use salient::rank::{distance, fuse, Index, Method, Ranking, Scope};
-use salient::similarity::{centroid_bound, d2_distance, lower_bound, Features, Summary};
+use salient::similarity::{centroid_bound, lower_bound, Features, Summary};
 use salient::{Params, Signature};
 
 #[test]
@@ -169,7 +169,7 @@ fn hybrid_is_the_weighted_sum_of_its_parts_and_its_bound_never_exceeds_it() {
                 &p.hybrid,
                 [
                     Some(lower_bound(&summary(sa), &summary(sb), p)),
-                    Some(d2_distance(sa, sb)),
+                    Some(d2),
                     Some(
                         sa.lfd
                             .as_ref()
