@@ -33,6 +33,7 @@
 pub mod api;
 pub mod collection;
 pub mod descriptor;
+pub mod duplicate;
 pub mod ecc;
 pub mod emd;
 pub mod error;

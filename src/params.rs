@@ -387,6 +387,8 @@ pub struct SimilarityParams {
     pub penalty_power: f64,
     /// The `hybrid` method's parts.
     pub hybrid: HybridParams,
+    /// When two models are one asset (`crate::duplicate`).
+    pub duplicates: DuplicateParams,
 }
 
 impl Default for SimilarityParams {
@@ -396,6 +398,7 @@ impl Default for SimilarityParams {
             penalty: true,
             penalty_power: 1.0,
             hybrid: HybridParams::default(),
+            duplicates: DuplicateParams::default(),
         }
     }
 }
@@ -409,10 +412,27 @@ impl SimilarityParams {
         }
     }
 
-    fn checks(&self) -> [(bool, &'static str, &'static str); 4] {
+    fn checks(&self) -> [(bool, &'static str, &'static str); 5] {
         let h = &self.hybrid;
         let parts = h.terms();
+        let d = &self.duplicates;
         [
+            (
+                [
+                    d.d2,
+                    d.lfd,
+                    d.mean,
+                    d.mean_per_spacing,
+                    d.largest,
+                    d.largest_per_spacing,
+                    d.geometry,
+                ]
+                .iter()
+                .all(|x| (0.0..=10.0).contains(x))
+                    && (1..=1000).contains(&d.candidates),
+                "similarity.duplicates",
+                "thresholds must be in [0, 10] and candidates in 1..=1000",
+            ),
             (
                 (0.0..=1.0).contains(&self.ecc_weight),
                 "similarity.ecc_weight",
@@ -439,6 +459,48 @@ impl SimilarityParams {
                 "scales must be positive and finite, and one weight positive",
             ),
         ]
+    }
+}
+
+/// The thresholds of the near-duplicate check (`crate::duplicate`), chosen with `salient eval
+/// duplicates` on the tuning halves of both shared collections (`docs/results/duplicates/`).
+/// Ranking parameters: changing them never makes a signature stale.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct DuplicateParams {
+    /// Candidates are within this global D2 distance (the `d2` method's) …
+    pub d2: f64,
+    /// … and this light field distance (the `lfd` method's) of each other: every disguised
+    /// copy of the tuning halves was within 0.062 and 0.020.
+    pub lfd: f64,
+    /// At most this many candidates for one upload, nearest first.
+    pub candidates: usize,
+    /// `same_shape` when, aligned, each surface's samples lie on average within this many RMS
+    /// radii of the other surface, or within `mean_per_spacing` triangle sizes of the coarser
+    /// mesh if that is more (a remeshing moves a coarse surface more) …
+    pub mean: f64,
+    pub mean_per_spacing: f64,
+    /// … and none farther than `largest` RMS radii or `largest_per_spacing` triangle sizes:
+    /// another pose of a model moves a limb far, however small it is.
+    pub largest: f64,
+    pub largest_per_spacing: f64,
+    /// `identical_geometry` when the welded meshes have the same counts and every vertex lies
+    /// within this many RMS radii of the other surface, unrotated.
+    pub geometry: f64,
+}
+
+impl Default for DuplicateParams {
+    fn default() -> Self {
+        Self {
+            d2: 0.08,
+            lfd: 0.03,
+            candidates: 32,
+            mean: 0.006,
+            mean_per_spacing: 0.15,
+            largest: 0.08,
+            largest_per_spacing: 1.0,
+            geometry: 1e-4,
+        }
     }
 }
 

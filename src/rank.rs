@@ -421,6 +421,58 @@ impl Index {
         self.entries.len() == 0
     }
 
+    /// Every pair of entries within `d2` of each other by the `d2` method's distance and
+    /// within `lfd` by the `lfd` method's (an entry without a light field descriptor passes
+    /// on D2 alone), each pair once with its ids in order: the candidates of a library-wide
+    /// duplicate search ([`crate::duplicate`]) without comparing every pair. The D2 bins cover
+    /// [0, 2], so a histogram's mean moves by at most twice the distance (`|Σ (cᵢ − 1)(pᵢ −
+    /// qᵢ)| ≤ Σ |pᵢ − qᵢ|`): sorted by mean, an entry meets only those whose mean is within
+    /// `2 · d2`. The LFD's in-memory bounds go before its exact distance, read from the shelf.
+    pub fn near_pairs(&self, d2: f64, lfd: f64) -> io::Result<Vec<(Arc<str>, Arc<str>)>> {
+        let mean = |h: &[f32]| {
+            let width = 2.0 / h.len() as f64;
+            h.iter()
+                .enumerate()
+                .map(|(i, &p)| (i as f64 + 0.5) * width * f64::from(p))
+                .sum::<f64>()
+        };
+        let mut order: Vec<(f64, Entry)> = self.entries.iter().map(|e| (mean(e.d2()), e)).collect();
+        order.sort_by(|a, b| a.0.total_cmp(&b.0).then_with(|| a.1.id().cmp(b.1.id())));
+        // Stored histograms are rounded to 1/65 535 a bin: a little slack keeps the bound safe.
+        let window = 2.0 * d2 + 1e-3;
+        let near_light_fields = |a: Entry, b: Entry| -> io::Result<bool> {
+            let (Some(sa), Some(sb), Some(ua), Some(ub)) =
+                (a.sketch(), b.sketch(), a.lfd(), b.lfd())
+            else {
+                return Ok(true);
+            };
+            if sa.lower_bound(sb) > lfd || ua.lower_bound(ub) > lfd {
+                return Ok(false);
+            }
+            Ok(match (a.light_field()?, b.light_field()?) {
+                (Some(x), Some(y)) => x.distance(&y) <= lfd,
+                _ => true,
+            })
+        };
+        let mut pairs = order
+            .par_iter()
+            .enumerate()
+            .map(|(i, &(m, a))| {
+                let mut near = Vec::new();
+                for &(_, b) in order[i + 1..].iter().take_while(|(n, _)| n - m <= window) {
+                    if histogram_l1(a.d2(), b.d2()) <= d2 && near_light_fields(a, b)? {
+                        let (x, y) = if a.id() < b.id() { (a, b) } else { (b, a) };
+                        near.push((x.id().clone(), y.id().clone()));
+                    }
+                }
+                Ok(near)
+            })
+            .collect::<io::Result<Vec<_>>>()?
+            .concat();
+        pairs.sort();
+        Ok(pairs)
+    }
+
     /// The `k` entries nearest to `query`, nearest first, ties by id.
     pub fn search(&self, query: &Signature, k: usize, method: Method) -> io::Result<Ranking> {
         self.search_where(query, k, method, &Scope::default())

@@ -64,7 +64,7 @@ pub fn required_scope(method: &Method, route: &str, metrics_open: bool) -> Optio
         "/healthz" | "/readyz" | "/openapi.yaml" | "/" | "/page/{file}" => None,
         "/metrics" => (!metrics_open).then_some(Scope::Admin),
         admin if admin.starts_with("/v1/admin/") => Some(Scope::Admin),
-        "/v1/search" | "/v1/extract" | "/v1/preview" => Some(Scope::Read),
+        "/v1/search" | "/v1/extract" | "/v1/preview" | "/v1/duplicates/check" => Some(Scope::Read),
         _ if method == Method::GET || method == Method::HEAD => Some(Scope::Read),
         _ => Some(Scope::Write),
     }

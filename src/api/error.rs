@@ -12,6 +12,7 @@ use axum::response::{IntoResponse, Response};
 use axum::Json;
 use serde::Serialize;
 
+use super::duplicates::DuplicateMatch;
 use crate::model::InvalidId;
 use crate::store::StoreError;
 
@@ -32,6 +33,9 @@ pub enum AppError {
     /// The model exists but lacks what the request needs (a descriptor from a newer format).
     #[error("{0}")]
     Conflict(String),
+    /// The upload duplicates a stored model, and the client asked to reject duplicates.
+    #[error("the upload duplicates model {:?} ({})", .0.id, .0.evidence)]
+    Duplicate(DuplicateMatch),
     #[error("{0}")]
     PayloadTooLarge(String),
     #[error("{0}")]
@@ -67,6 +71,9 @@ pub struct ErrorDetail {
     /// Stable machine-readable code, e.g. `unsupported_format`.
     pub code: String,
     pub message: String,
+    /// With `duplicate`: the stored model the upload duplicates.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub duplicate: Option<DuplicateMatch>,
 }
 
 impl AppError {
@@ -98,6 +105,7 @@ impl AppError {
             AppError::Forbidden(_) => (StatusCode::FORBIDDEN, "forbidden"),
             AppError::NotFound(_) => (StatusCode::NOT_FOUND, "not_found"),
             AppError::Conflict(_) => (StatusCode::CONFLICT, "missing_descriptor"),
+            AppError::Duplicate(_) => (StatusCode::CONFLICT, "duplicate"),
             AppError::PayloadTooLarge(_) => (StatusCode::PAYLOAD_TOO_LARGE, "payload_too_large"),
             AppError::UnsupportedMediaType(_) => {
                 (StatusCode::UNSUPPORTED_MEDIA_TYPE, "unsupported_format")
@@ -121,6 +129,10 @@ impl IntoResponse for AppError {
             error: ErrorDetail {
                 code: code.to_string(),
                 message: self.public_message(),
+                duplicate: match &self {
+                    AppError::Duplicate(found) => Some(found.clone()),
+                    _ => None,
+                },
             },
         });
         match self {

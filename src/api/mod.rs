@@ -5,6 +5,7 @@
 pub mod auth;
 mod catalog;
 pub mod config;
+pub mod duplicates;
 pub mod error;
 mod files;
 mod metrics;
@@ -89,6 +90,11 @@ pub struct App {
     queries: std::sync::Mutex<lru::LruCache<String, (Extent, Arc<Signature>)>>,
     /// Called on the ranking thread while it holds its catalogue snapshot (tests).
     ranking_hook: Option<Hook>,
+    /// Meshes and verdicts of the near-duplicate check.
+    verifier: duplicates::Verifier,
+    /// Held from the duplicate check of an upload that rejects duplicates until it is stored,
+    /// so that two copies uploaded at once cannot both pass.
+    duplicate_gate: tokio::sync::Mutex<()>,
 }
 
 /// Starting the service failed.
@@ -179,6 +185,8 @@ impl App {
                 .map(|n| governor::RateLimiter::keyed(governor::Quota::per_minute(n))),
             queries: std::sync::Mutex::new(lru::LruCache::new(RECENT_QUERIES)),
             ranking_hook: None,
+            verifier: duplicates::Verifier::default(),
+            duplicate_gate: tokio::sync::Mutex::new(()),
         })
     }
 
@@ -348,6 +356,7 @@ impl App {
     tags(
         (name = "models", description = "Stored models"),
         (name = "search", description = "Similarity search and extraction"),
+        (name = "duplicates", description = "Near-duplicate models"),
         (name = "admin", description = "Re-extraction of stored models"),
         (name = "operations", description = "Health, readiness, metrics")
     )
@@ -470,6 +479,8 @@ fn routes() -> OpenApiRouter<AppState> {
         .routes(utoipa_axum::routes!(search::similar))
         .routes(utoipa_axum::routes!(search::search))
         .routes(utoipa_axum::routes!(search::extract))
+        .routes(utoipa_axum::routes!(duplicates::list_duplicates))
+        .routes(utoipa_axum::routes!(duplicates::check_duplicates))
         .routes(utoipa_axum::routes!(
             reindex::start_reindex,
             reindex::get_reindex

@@ -7,11 +7,37 @@ use axum::http::StatusCode;
 use axum::Json;
 use serde::{Deserialize, Serialize};
 
+use super::duplicates::duplicates_of;
 use super::error::{AppError, ErrorBody};
 use super::upload::{AppJson, AppPath, AppQuery, MeshUpload, ModelFields, ModelPath};
 use super::AppState;
+use crate::duplicate::Evidence;
 use crate::model::{ModelId, ModelRecord};
 use crate::signature::Signature;
+
+/// What to do when an upload duplicates a stored model.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Deserialize, utoipa::ToSchema)]
+#[serde(rename_all = "lowercase")]
+pub enum OnDuplicate {
+    /// Store it anyway (`GET /v1/duplicates` lists it with its copies).
+    #[default]
+    Allow,
+    /// Answer 409 `duplicate` with the stored model and the evidence, and store nothing.
+    /// Mirror images are not rejected: a left part and its right counterpart are two assets.
+    Reject,
+}
+
+/// Query of `POST /v1/models` besides the model's fields.
+#[derive(Debug, Deserialize, utoipa::IntoParams)]
+#[into_params(parameter_in = Query)]
+pub struct AddQuery {
+    /// `allow` (default) or `reject` an upload that duplicates another stored model (the same
+    /// file, the same mesh in another format or unit, or the same shape rotated, rescaled or
+    /// remeshed; see `POST /v1/duplicates/check`). Uploading again what a model already holds
+    /// under its own id is never a duplicate.
+    #[param(value_type = Option<String>, pattern = "^(allow|reject)$")]
+    pub on_duplicate: Option<OnDuplicate>,
+}
 
 /// Add a model, or replace the model with the same id.
 ///
@@ -25,11 +51,12 @@ use crate::signature::Signature;
     post,
     path = "/v1/models",
     tag = "models",
-    params(ModelFields),
+    params(ModelFields, AddQuery),
     responses(
         (status = 201, description = "Added", body = ModelRecord),
         (status = 200, description = "Replaced, or already present", body = ModelRecord),
         (status = 400, description = "Bad id, fields or mesh file", body = ErrorBody),
+        (status = 409, description = "A duplicate of a stored model, with `on_duplicate=reject`", body = ErrorBody),
         (status = 413, description = "Body or mesh over the limits", body = ErrorBody),
         (status = 415, description = "Unsupported format", body = ErrorBody),
         (status = 422, description = "Unusable mesh", body = ErrorBody),
@@ -38,6 +65,7 @@ use crate::signature::Signature;
 )]
 pub async fn add_model(
     State(app): State<AppState>,
+    AppQuery(q): AppQuery<AddQuery>,
     upload: MeshUpload,
 ) -> Result<(StatusCode, Json<ModelRecord>), AppError> {
     let MeshUpload { upload, fields } = upload;
@@ -70,6 +98,21 @@ pub async fn add_model(
     let bytes = signature.to_bytes();
     let row = app.catalog.row(&record.id, &signature)?;
 
+    let _gate = match q.on_duplicate.unwrap_or_default() {
+        OnDuplicate::Allow => None,
+        OnDuplicate::Reject => {
+            let gate = app.duplicate_gate.lock().await;
+            let found =
+                duplicates_of(&app, upload.clone(), signature, Some(record.id.clone())).await?;
+            if let Some(first) = found
+                .into_iter()
+                .find(|m| m.evidence <= Evidence::SameShape)
+            {
+                return Err(AppError::Duplicate(first));
+            }
+            Some(gate)
+        }
+    };
     let _write = app.writes.lock().await;
     let (to_store, stored_upload) = (record.clone(), upload.clone());
     let previous = app

@@ -9,7 +9,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 use salient::collection::{SignatureCache, CACHE_DIR};
 use salient::eval::retrieval::{self, EvalMethod};
 use salient::eval::robustness::Perturbation;
-use salient::eval::{robustness, study, tune, LabelledCollection, Progress};
+use salient::eval::{duplicates, robustness, study, tune, LabelledCollection, Progress};
 use salient::mesh::load_path;
 use salient::Limits;
 
@@ -29,9 +29,30 @@ enum Command {
     /// Vary W, the penalty, K, flat_max and D_g one at a time; tune on half of each class,
     /// judge on the other half.
     Study(StudyArgs),
+    /// Mix two disguised copies of every model into the collection (re-exported in another
+    /// format, unit and place; remeshed, rotated and scaled) and measure how well the
+    /// near-duplicate search groups them: precision and recall of duplicate pairs per
+    /// evidence level.
+    Duplicates(DuplicatesArgs),
     /// Choose the hybrid's weights, scales and penalty power on the tuning halves of the
     /// collections together; judge them on the held-out halves.
     Tune(TuneArgs),
+}
+
+#[derive(Debug, clap::Args)]
+struct DuplicatesArgs {
+    /// The labelled collection.
+    dir: PathBuf,
+    /// The models that take part: the tuning half (thresholds are chosen on it), the
+    /// held-out half (they are judged on it) or all.
+    #[arg(long, value_enum, default_value = "held-out")]
+    half: duplicates::Half,
+    /// Where duplicates.json and duplicates.md go.
+    #[arg(long, default_value = "salient-duplicates")]
+    out: PathBuf,
+    /// Parameters as JSON (`similarity.duplicates` holds the thresholds).
+    #[arg(long)]
+    params: Option<PathBuf>,
 }
 
 #[derive(Debug, clap::Args)]
@@ -121,7 +142,22 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         Command::Robustness(args) => robustness(args),
         Command::Study(args) => study(args),
         Command::Tune(args) => tune(args),
+        Command::Duplicates(args) => duplicates(args),
     }
+}
+
+fn duplicates(args: DuplicatesArgs) -> anyhow::Result<()> {
+    let params = super::load_params(args.params.as_ref())?;
+    params.validate()?;
+    let collection = LabelledCollection::open(&args.dir)?;
+    let report = duplicates::run(
+        &collection,
+        args.half,
+        &params,
+        &Limits::default(),
+        &Bar::default(),
+    )?;
+    written(&args.out, report.write(&args.out), report.markdown())
 }
 
 fn tune(args: TuneArgs) -> anyhow::Result<()> {

@@ -210,15 +210,7 @@ fn noisy(base: &PreparedMesh, level: f64, rng: &mut ChaCha8Rng) -> RawMesh {
 /// A uniformly random rotation, a translation up to the mesh's size and a scale between
 /// 1/10 and 10 (log-uniform).
 fn random_motion(rng: &mut ChaCha8Rng, base: &PreparedMesh) -> DMat4 {
-    // Shoemake's uniform random unit quaternion.
-    let (u1, u2, u3): (f64, f64, f64) = (rng.gen(), rng.gen(), rng.gen());
-    let tau = std::f64::consts::TAU;
-    let rotation = DQuat::from_xyzw(
-        (1.0 - u1).sqrt() * (tau * u2).sin(),
-        (1.0 - u1).sqrt() * (tau * u2).cos(),
-        u1.sqrt() * (tau * u3).sin(),
-        u1.sqrt() * (tau * u3).cos(),
-    );
+    let rotation = random_rotation(rng);
     let size = 1.0 / base.scale;
     let translation = DVec3::new(
         rng.gen_range(-size..size),
@@ -227,6 +219,18 @@ fn random_motion(rng: &mut ChaCha8Rng, base: &PreparedMesh) -> DMat4 {
     );
     let scale = 10f64.powf(rng.gen_range(-1.0..1.0));
     DMat4::from_scale_rotation_translation(DVec3::splat(scale), rotation, translation)
+}
+
+/// A uniformly random rotation (Shoemake's random unit quaternion).
+pub(crate) fn random_rotation(rng: &mut ChaCha8Rng) -> DQuat {
+    let (u1, u2, u3): (f64, f64, f64) = (rng.gen(), rng.gen(), rng.gen());
+    let tau = std::f64::consts::TAU;
+    DQuat::from_xyzw(
+        (1.0 - u1).sqrt() * (tau * u2).sin(),
+        (1.0 - u1).sqrt() * (tau * u2).cos(),
+        u1.sqrt() * (tau * u3).sin(),
+        u1.sqrt() * (tau * u3).cos(),
+    )
 }
 
 impl RobustnessReport {

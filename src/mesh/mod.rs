@@ -8,6 +8,7 @@ pub mod simplify;
 pub mod smooth;
 pub mod topology;
 pub mod weld;
+pub mod write;
 
 pub use load::{load_bytes, load_path, Format, Resources};
 pub use prepare::{prepare, PrepareStats, PreparedMesh};

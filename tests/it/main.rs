@@ -17,6 +17,7 @@ mod api;
 mod auth;
 mod cli;
 mod concurrency;
+mod duplicates;
 mod durability;
 mod ecc;
 mod emd;

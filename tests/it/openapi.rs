@@ -61,5 +61,5 @@ async fn every_documented_operation_is_routed() {
             operations += 1;
         }
     }
-    assert_eq!(operations, 21, "documented operations");
+    assert_eq!(operations, 23, "documented operations");
 }

@@ -1,0 +1,223 @@
+//! Near-duplicates (issue #14), with known answers: a generated model and its disguised copies
+//! are one asset, another pose of it and other shapes are not; over HTTP, the check, the
+//! rejecting upload and the library's groups.
+
+use axum::http::StatusCode;
+use glam::{DMat4, DQuat, DVec3};
+use salient::duplicate::{verify, Evidence, Shape};
+use salient::mesh::load::NoResources;
+use salient::mesh::simplify::simplify;
+use salient::mesh::weld::weld;
+use salient::mesh::write::Export;
+use salient::mesh::{load_bytes, RawMesh};
+use salient::params::DuplicateParams;
+use salient::Limits;
+use serde_json::Value;
+
+use crate::app::TestApp;
+use crate::server::{fixture, obj};
+use crate::shapes;
+
+/// A body with five limbs.
+fn model() -> RawMesh {
+    shapes::star(4, &shapes::five_tips())
+}
+
+/// The same body with its +x limb turned 45° at its root: another pose of the same
+/// character, which is another asset.
+fn posed() -> RawMesh {
+    let joint = DVec3::new(0.45, 0.0, 0.0);
+    let turn = DQuat::from_rotation_z(45f64.to_radians());
+    let mut mesh = model();
+    for p in &mut mesh.positions {
+        if p.x > joint.x {
+            *p = joint + turn * (*p - joint);
+        }
+    }
+    mesh
+}
+
+/// `mesh` remeshed to about half its vertices, then rotated, scaled by 0.1 and moved.
+fn remeshed(mesh: &RawMesh) -> RawMesh {
+    let welded = weld(mesh, 1e-6).unwrap();
+    let (positions, triangles) = simplify(
+        &welded.positions,
+        &welded.triangles,
+        welded.positions.len() / 2,
+    )
+    .unwrap();
+    let motion = DMat4::from_scale_rotation_translation(
+        DVec3::splat(0.1),
+        DQuat::from_axis_angle(DVec3::new(1.0, -2.0, 0.5).normalize(), 2.2),
+        DVec3::new(4.0, -7.0, 1.5),
+    );
+    shapes::transformed(
+        &RawMesh {
+            positions,
+            triangles,
+        },
+        motion,
+    )
+}
+
+/// `mesh` in inches rather than millimetres, moved: the same geometry.
+fn rescaled(mesh: &RawMesh) -> RawMesh {
+    let motion = DMat4::from_scale_rotation_translation(
+        DVec3::splat(25.4),
+        DQuat::IDENTITY,
+        DVec3::new(-30.0, 12.0, 5.0),
+    );
+    shapes::transformed(mesh, motion)
+}
+
+/// The file of `mesh` as `export` writes it, read back as an upload would be.
+fn file(mesh: &RawMesh, export: Export) -> (Vec<u8>, RawMesh) {
+    let bytes = export.write(mesh);
+    let read = load_bytes(&bytes, export.format(), &NoResources, &Limits::default()).unwrap();
+    (bytes, read)
+}
+
+fn shape(mesh: &RawMesh) -> Shape {
+    Shape::new(mesh, 1e-6).unwrap()
+}
+
+#[test]
+fn a_model_and_its_disguised_copies_are_one_asset_and_another_pose_is_not() {
+    let params = DuplicateParams::default();
+    let original = shape(&model());
+    let evidence = |copy: &RawMesh| verify(&original, &shape(copy), &params).map(|v| v.evidence);
+
+    for export in [Export::BinaryStl, Export::AsciiStl, Export::Glb] {
+        let (_, copy) = file(&rescaled(&model()), export);
+        assert_eq!(
+            evidence(&copy),
+            Some(Evidence::IdenticalGeometry),
+            "{}",
+            export.name()
+        );
+    }
+    let (_, copy) = file(&remeshed(&model()), Export::AsciiStl);
+    assert_eq!(evidence(&copy), Some(Evidence::SameShape));
+
+    assert_eq!(evidence(&posed()), None, "another pose");
+    assert_eq!(evidence(&shapes::tube(0.3, 30, 24)), None, "another shape");
+    let four_limbs = shapes::star(4, &shapes::five_tips()[..4]);
+    assert_eq!(evidence(&four_limbs), None, "a limb fewer");
+}
+
+#[test]
+fn scores_fall_from_one_for_identical_meshes() {
+    let params = DuplicateParams::default();
+    let original = shape(&model());
+    let same = verify(&original, &shape(&model()), &params).unwrap();
+    assert_eq!(same.evidence, Evidence::IdenticalGeometry);
+    assert!(same.score > 0.999, "{same:?}");
+    let remeshed = verify(&original, &shape(&remeshed(&model())), &params).unwrap();
+    assert!((0.0..1.0).contains(&remeshed.score), "{remeshed:?}");
+}
+
+async fn json(response: crate::app::TestResponse) -> Value {
+    response.json()
+}
+
+#[tokio::test]
+async fn duplicates_are_checked_rejected_and_grouped_over_http() {
+    let app = TestApp::new();
+    for (id, bytes) in [
+        ("body", obj(&model())),
+        ("posed", obj(&posed())),
+        ("tube", obj(&shapes::tube(0.3, 30, 24))),
+        ("horse", fixture("capod_horse_m155.obj")),
+    ] {
+        let response = app.add(&format!("id={id}"), "model/obj", bytes).await;
+        assert_eq!(response.status(), StatusCode::CREATED, "{id}");
+    }
+    let (copy, _) = file(&remeshed(&model()), Export::BinaryStl);
+
+    // The check: the copy is the body, not its other pose.
+    let response = app
+        .post("/v1/duplicates/check")
+        .header("content-type", "model/stl")
+        .body(copy.clone())
+        .send()
+        .await;
+    assert_eq!(response.status(), StatusCode::OK);
+    let matches = json(response).await["matches"].clone();
+    assert_eq!(matches.as_array().unwrap().len(), 1, "{matches}");
+    assert_eq!(matches[0]["id"], "body");
+    assert_eq!(matches[0]["evidence"], "same_shape");
+
+    // The same file is found as such, first.
+    let checked = json(
+        app.post("/v1/duplicates/check")
+            .header("content-type", "model/obj")
+            .body(obj(&model()))
+            .send()
+            .await,
+    )
+    .await;
+    assert_eq!(checked["matches"][0]["id"], "body");
+    assert_eq!(checked["matches"][0]["evidence"], "identical_file");
+    assert_eq!(checked["matches"][0]["score"], 1.0);
+
+    // Rejected on request, nothing stored; allowed by default.
+    let response = app
+        .add("id=copy&on_duplicate=reject", "model/stl", copy.clone())
+        .await;
+    assert_eq!(response.status(), StatusCode::CONFLICT);
+    let body = json(response).await;
+    assert_eq!(body["error"]["code"], "duplicate");
+    assert_eq!(body["error"]["duplicate"]["id"], "body");
+    assert_eq!(body["error"]["duplicate"]["evidence"], "same_shape");
+    assert!(!app.listed_ids().await.contains("copy"));
+    let (inches, _) = file(&rescaled(&model()), Export::Glb);
+    let response = app.add("id=inches", "model/gltf-binary", inches).await;
+    assert_eq!(response.status(), StatusCode::CREATED);
+    // Uploading again what a model holds is not a duplicate of itself (the ingest client
+    // retries).
+    let response = app
+        .add("id=body&on_duplicate=reject", "model/obj", obj(&model()))
+        .await;
+    assert_eq!(response.status(), StatusCode::OK);
+
+    // The library's groups: the body and its copy in inches; the other pose stays apart.
+    let page = app.get_json("/v1/duplicates").await;
+    let groups = page["groups"].as_array().unwrap();
+    assert_eq!(groups.len(), 1, "{page}");
+    assert_eq!(groups[0]["ids"], serde_json::json!(["body", "inches"]));
+    assert_eq!(groups[0]["evidence"], "identical_geometry");
+    assert_eq!(groups[0]["scores"].as_array().unwrap().len(), 2);
+    assert!(page["next"].is_null());
+    let files_only = app
+        .get_json("/v1/duplicates?min_evidence=identical_file")
+        .await;
+    assert_eq!(files_only["groups"], serde_json::json!([]));
+    let after = app.get_json("/v1/duplicates?after=body").await;
+    assert_eq!(after["groups"], serde_json::json!([]));
+
+    for bad in ["limit=0", "limit=1001", "min_evidence=similar"] {
+        let response = app.get(format!("/v1/duplicates?{bad}")).send().await;
+        assert_eq!(response.status(), StatusCode::BAD_REQUEST, "{bad}");
+        assert_eq!(json(response).await["error"]["code"], "invalid_query");
+    }
+}
+
+#[tokio::test]
+async fn pages_of_groups_follow_their_first_ids() {
+    let app = TestApp::new();
+    for (id, mesh) in [
+        ("a1", model()),
+        ("a2", rescaled(&model())),
+        ("b1", shapes::tube(0.3, 30, 24)),
+        ("b2", rescaled(&shapes::tube(0.3, 30, 24))),
+    ] {
+        let response = app.add(&format!("id={id}"), "model/obj", obj(&mesh)).await;
+        assert_eq!(response.status(), StatusCode::CREATED, "{id}");
+    }
+    let first = app.get_json("/v1/duplicates?limit=1").await;
+    assert_eq!(first["groups"][0]["ids"], serde_json::json!(["a1", "a2"]));
+    assert_eq!(first["next"], "a1");
+    let second = app.get_json("/v1/duplicates?limit=1&after=a1").await;
+    assert_eq!(second["groups"][0]["ids"], serde_json::json!(["b1", "b2"]));
+    assert!(second["next"].is_null());
+}
