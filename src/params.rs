@@ -477,9 +477,11 @@ pub struct DuplicateParams {
     pub candidates: usize,
     /// `same_shape` when, aligned, each surface's samples lie on average within this many RMS
     /// radii of the other surface, or within `mean_per_spacing` triangle sizes of the coarser
-    /// mesh if that is more (a remeshing moves a coarse surface more) …
+    /// mesh if that is more (a remeshing moves a coarse surface more), but never more than
+    /// `mean_at_most` (boxy low-poly models have large triangles that remeshing hardly moves) …
     pub mean: f64,
     pub mean_per_spacing: f64,
+    pub mean_at_most: f64,
     /// … and none farther than `largest` RMS radii or `largest_per_spacing` triangle sizes:
     /// another pose of a model moves a limb far, however small it is.
     pub largest: f64,
@@ -496,7 +498,8 @@ impl Default for DuplicateParams {
             lfd: 0.03,
             candidates: 32,
             mean: 0.006,
-            mean_per_spacing: 0.15,
+            mean_per_spacing: 0.2,
+            mean_at_most: 0.025,
             largest: 0.08,
             largest_per_spacing: 1.0,
             geometry: 1e-4,

@@ -27,6 +27,13 @@ $salient eval tune shrec07-watertight capod --cache-dir "$cache" --out "$out/tun
 $salient eval retrieval shrec07-watertight --methods hybrid,ecc,d2,lfd,geodesic --perturb noise=0.01 \
     --cache-dir "$cache/shrec07-watertight" --out "$out/noise-shrec07-watertight"
 gzip -9nf "$out/noise-shrec07-watertight"/distances-*.csv
+# Near-duplicates: disguised copies mixed into each collection; thresholds chosen on the
+# tuning halves, judged on the held-out ones.
+for set in shrec07-watertight capod; do
+    for half in tuning held-out; do
+        $salient eval duplicates "$set" --half "$half" --out "$out/duplicates/$set-$half"
+    done
+done
 for mesh in shrec07-watertight/ant/81.off shrec07-watertight/teddy/171.off \
     shrec07-watertight/hand/181.off capod/dog/m100.obj; do
     name="$(basename "$(dirname "$mesh")")-$(basename "${mesh%.*}")"

@@ -26,8 +26,10 @@ use crate::pipeline::Extent;
 use crate::rank::{Method, Scope};
 use crate::signature::Signature;
 
-/// Meshes kept ready for verification (a shape of 10 000 vertices takes ~1 MB).
+/// Meshes kept ready for verification (a shape of 10 000 vertices takes ~1 MB) …
 const SHAPES: NonZeroUsize = NonZeroUsize::new(64).expect("not zero");
+/// … if they have at most this many vertices, so that the cache stays under ~1 GB.
+const SHAPE_VERTICES: usize = 100_000;
 /// Verdicts remembered (~200 bytes each).
 const VERDICTS: NonZeroUsize = NonZeroUsize::new(200_000).expect("not zero");
 
@@ -362,11 +364,13 @@ impl App {
             &self.config.limits,
         )?;
         let shape = Arc::new(Shape::new(&raw, self.config.params.mesh.weld_tolerance)?);
-        self.verifier
-            .shapes
-            .lock()
-            .expect("never poisoned")
-            .put(hash.to_string(), shape.clone());
+        if shape.vertices() <= SHAPE_VERTICES {
+            self.verifier
+                .shapes
+                .lock()
+                .expect("never poisoned")
+                .put(hash.to_string(), shape.clone());
+        }
         Ok(Some(shape))
     }
 }

@@ -93,11 +93,16 @@ impl Verdict {
 
 /// Whether `a` and `b` (two different files) are one asset, and on what evidence.
 pub fn verify(a: &Shape, b: &Shape, params: &DuplicateParams) -> Option<Verdict> {
-    judge(a.geometry_deviation(b), || a.align(b), a.coarser(b), params)
+    judge(
+        a.geometry_deviation(b, params.geometry),
+        || a.align(b),
+        a.coarser(b),
+        params,
+    )
 }
 
-/// The verdict on a geometry deviation ([`Shape::geometry_deviation`]) and, when that does
-/// not decide, an alignment ([`Shape::align`], the costly part, made only then), `spacing`
+/// The verdict on a geometry deviation within `params.geometry` ([`Shape::geometry_deviation`];
+/// `None` when beyond) and, when that does not decide, an alignment ([`Shape::align`], the costly part, made only then), `spacing`
 /// the coarser mesh's triangle size ([`Shape::coarser`]). The score is 1 less the largest
 /// share of its limit a statistic used.
 pub fn judge(
@@ -106,17 +111,19 @@ pub fn judge(
     spacing: f64,
     params: &DuplicateParams,
 ) -> Option<Verdict> {
-    if let Some(d) = deviation.filter(|&d| d <= params.geometry) {
+    if let Some(d) = deviation {
         return Some(Verdict {
             evidence: Evidence::IdenticalGeometry,
             score: 1.0 - d / params.geometry,
         });
     }
-    let mean = params.mean.max(params.mean_per_spacing * spacing);
+    let mean = params
+        .mean
+        .max((params.mean_per_spacing * spacing).min(params.mean_at_most));
     let largest = params.largest.max(params.largest_per_spacing * spacing);
     let verdict = |evidence, d: Deviation| {
         let used = (d.mean / mean).max(d.max / largest);
-        (used <= 1.0).then(|| Verdict {
+        (used <= 1.0).then_some(Verdict {
             evidence,
             score: 1.0 - used,
         })

@@ -216,7 +216,7 @@ pub fn run(
 
     let clock = Instant::now();
     progress.start("copies", chosen.len());
-    let files: Vec<File> = chosen
+    let mut files: Vec<File> = chosen
         .par_iter()
         .map(|&i| {
             let model = &collection.models[i];
@@ -236,7 +236,7 @@ pub fn run(
         .flatten()
         .collect();
     progress.finish();
-    let (files, identical_in_collection) = one_source_per_content(collection, files)?;
+    let identical_in_collection = one_source_per_content(collection, &mut files)?;
     let copies_seconds = clock.elapsed().as_secs_f64();
 
     let clock = Instant::now();
@@ -283,7 +283,12 @@ pub fn run(
             let (i, j) = (number[&**a], number[&**b]);
             let (x, y) = (&described[i].1, &described[j].1);
             let alignment = x.align(y);
-            let verdict = judge(x.geometry_deviation(y), || alignment, x.coarser(y), p);
+            let verdict = judge(
+                x.geometry_deviation(y, p.geometry),
+                || alignment,
+                x.coarser(y),
+                p,
+            );
             progress.advance(a);
             (
                 i,
@@ -366,19 +371,23 @@ pub fn run(
         .iter()
         .map(|(a, b)| (number[&**a], number[&**b]))
         .collect();
+    let original: HashMap<usize, usize> = files
+        .iter()
+        .enumerate()
+        .rev()
+        .filter(|(_, f)| f.disguise.is_none())
+        .map(|(i, f)| (f.source, i))
+        .collect();
     let disguises = [Disguise::Reexported, Disguise::Remeshed]
         .into_iter()
         .map(|disguise| {
-            // Each copy's model is the file just before its copies (files go model, copies).
             let checked: Vec<(Option<Verdict>, f64, Deviation, &str, bool)> = files
                 .par_iter()
                 .enumerate()
                 .filter(|(_, f)| f.disguise == Some(disguise))
                 .map(|(c, f)| {
-                    let o = files
-                        .iter()
-                        .position(|g| g.source == f.source && g.disguise.is_none())
-                        .expect("a copy has its model");
+                    // The source's first model (byte-identical models share a source).
+                    let o = original[&f.source];
                     let (x, y) = (&described[c].1, &described[o].1);
                     let alignment = x.align(y);
                     let pair = if files[o].name < f.name {
@@ -388,7 +397,12 @@ pub fn run(
                     };
                     let d2 =
                         crate::descriptor::histogram_l1(&described[o].0.d2, &described[c].0.d2);
-                    let verdict = judge(x.geometry_deviation(y), || alignment, x.coarser(y), p);
+                    let verdict = judge(
+                        x.geometry_deviation(y, p.geometry),
+                        || alignment,
+                        x.coarser(y),
+                        p,
+                    );
                     (
                         verdict,
                         d2,
@@ -453,8 +467,8 @@ pub fn run(
 /// hold a few) take the first one's source: they are duplicates in fact.
 fn one_source_per_content(
     collection: &LabelledCollection,
-    mut files: Vec<File>,
-) -> Result<(Vec<File>, Vec<(String, String)>)> {
+    files: &mut [File],
+) -> Result<Vec<(String, String)>> {
     let mut first: HashMap<String, usize> = HashMap::new();
     let mut source = HashMap::new();
     let mut identical = Vec::new();
@@ -467,10 +481,10 @@ fn one_source_per_content(
         }
         source.insert(f.source, kept);
     }
-    for f in &mut files {
+    for f in files.iter_mut() {
         f.source = source[&f.source];
     }
-    Ok((files, identical))
+    Ok(identical)
 }
 
 fn chosen_count(files: &[File]) -> usize {
@@ -662,7 +676,7 @@ impl DuplicatesReport {
             "# Near-duplicates: {} ({} half)\n\n{} models, each with a re-exported and a remeshed copy \
              ({} copies). Thresholds (`similarity.duplicates`): `{}`. {} candidate pairs verified. \
              Byte-identical models of the collection count as one model: {}.\n\n## Pairs found\n\n{}\n## Each copy against its model\n\n{}\n\
-             ## Candidate filters\n\n{}\n## Hard negatives\n\nCandidate pairs of different models, aligned distance (RMS radii): \
+             ## Candidate filters\n\n{}\n## Hard negatives\n\nCandidate pairs of different models, 99th percentile of the aligned distances (RMS radii): \
              {} pairs, smallest {:.4}, median {:.4}.\n\nFalse links:\n\n{}\n\
              Seconds: copies {:.1}, signatures and shapes {:.1}, search {:.1}.\n",
             self.collection,
