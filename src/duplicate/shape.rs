@@ -3,8 +3,9 @@
 //! with "same shape"), so both meshes go to a canonical frame — area centroid at the origin,
 //! unit RMS radius, principal axes — and are aligned over the 48 signed permutations of those
 //! axes (second moments fix neither the axes' signs nor, when two are near-equal, their
-//! order, which remeshing can swap), the best starts refined by ICP. What is left is the mean
-//! distance from each surface's samples to the other surface, in RMS radii.
+//! order, which remeshing can swap), the best starts refined by ICP. What is left are the
+//! distances from each surface's samples to the other surface, in RMS radii; their mean and
+//! largest decide (`crate::duplicate::judge`).
 //!
 //! Point-to-surface distances come from parry3d's triangle mesh (a BVH); only the alignment
 //! is written here. Types are glam's as parry re-exports them (`glamx`), f32 as parry's are.
@@ -60,7 +61,6 @@ pub struct Deviation {
     pub p90: f64,
     pub p99: f64,
     pub max: f64,
-    pub spacing: f64,
 }
 
 impl Deviation {
@@ -69,7 +69,6 @@ impl Deviation {
         p90: f64::INFINITY,
         p99: f64::INFINITY,
         max: f64::INFINITY,
-        spacing: 0.0,
     };
 
     fn of(mut distances: Vec<f32>) -> Self {
@@ -80,7 +79,6 @@ impl Deviation {
             p90: at(0.9),
             p99: at(0.99),
             max: at(1.0),
-            spacing: 0.0,
         }
     }
 
@@ -90,7 +88,6 @@ impl Deviation {
             p90: self.p90.max(other.p90),
             p99: self.p99.max(other.p99),
             max: self.max.max(other.max),
-            spacing: 0.0,
         }
     }
 }

@@ -144,12 +144,35 @@ pub struct DisguiseResult {
     pub worst: Vec<Aligned>,
 }
 
-/// Two files and their aligned deviation.
+/// Two files, their aligned deviation and the coarser one's triangle size (RMS radii).
 #[derive(Debug, Clone, Serialize)]
 pub struct Aligned {
     pub a: String,
     pub b: String,
     pub deviation: Deviation,
+    pub spacing: f64,
+}
+
+/// A pair verified as the service verifies it, with what the verdict was judged on.
+struct Measured {
+    verdict: Option<Verdict>,
+    deviation: Deviation,
+    spacing: f64,
+}
+
+fn measure(x: &Shape, y: &Shape, p: &DuplicateParams) -> Measured {
+    let alignment = x.align(y);
+    let spacing = x.coarser(y);
+    Measured {
+        verdict: judge(
+            x.geometry_deviation(y, p.geometry),
+            || alignment,
+            spacing,
+            p,
+        ),
+        deviation: alignment.rotated,
+        spacing,
+    }
 }
 
 #[derive(Debug, Clone, Serialize)]
@@ -277,28 +300,13 @@ pub fn run(
             source: e,
         })?;
     progress.start("verify", pairs.len());
-    let measured: Vec<(usize, usize, Option<Verdict>, Deviation)> = pairs
+    let measured: Vec<(usize, usize, Measured)> = pairs
         .par_iter()
         .map(|(a, b)| {
             let (i, j) = (number[&**a], number[&**b]);
             let (x, y) = (&described[i].1, &described[j].1);
-            let alignment = x.align(y);
-            let verdict = judge(
-                x.geometry_deviation(y, p.geometry),
-                || alignment,
-                x.coarser(y),
-                p,
-            );
             progress.advance(a);
-            (
-                i,
-                j,
-                verdict,
-                Deviation {
-                    spacing: x.coarser(y),
-                    ..alignment.rotated
-                },
-            )
+            (i, j, measure(x, y, p))
         })
         .collect();
     progress.finish();
@@ -306,11 +314,11 @@ pub fn run(
 
     let links: Vec<Link<usize>> = measured
         .iter()
-        .filter_map(|&(a, b, verdict, _)| {
+        .filter_map(|&(a, b, ref m)| {
             Some(Link {
                 a,
                 b,
-                verdict: verdict?,
+                verdict: m.verdict?,
             })
         })
         .collect();
@@ -361,10 +369,11 @@ pub fn run(
     let negatives: Vec<Aligned> = measured
         .iter()
         .filter(|m| !same_source(m.0, m.1))
-        .map(|m| Aligned {
-            a: files[m.0].name.clone(),
-            b: files[m.1].name.clone(),
-            deviation: m.3,
+        .map(|(a, b, m)| Aligned {
+            a: files[*a].name.clone(),
+            b: files[*b].name.clone(),
+            deviation: m.deviation,
+            spacing: m.spacing,
         })
         .collect();
     let candidate: std::collections::HashSet<(usize, usize)> = pairs
@@ -381,15 +390,13 @@ pub fn run(
     let disguises = [Disguise::Reexported, Disguise::Remeshed]
         .into_iter()
         .map(|disguise| {
-            let checked: Vec<(Option<Verdict>, f64, Deviation, &str, bool)> = files
+            let checked: Vec<(Measured, f64, &str, bool)> = files
                 .par_iter()
                 .enumerate()
                 .filter(|(_, f)| f.disguise == Some(disguise))
                 .map(|(c, f)| {
                     // The source's first model (byte-identical models share a source).
                     let o = original[&f.source];
-                    let (x, y) = (&described[c].1, &described[o].1);
-                    let alignment = x.align(y);
                     let pair = if files[o].name < f.name {
                         (o, c)
                     } else {
@@ -397,43 +404,34 @@ pub fn run(
                     };
                     let d2 =
                         crate::descriptor::histogram_l1(&described[o].0.d2, &described[c].0.d2);
-                    let verdict = judge(
-                        x.geometry_deviation(y, p.geometry),
-                        || alignment,
-                        x.coarser(y),
-                        p,
-                    );
                     (
-                        verdict,
+                        measure(&described[c].1, &described[o].1, p),
                         d2,
-                        Deviation {
-                            spacing: x.coarser(y),
-                            ..alignment.rotated
-                        },
                         f.name.as_str(),
                         candidate.contains(&pair),
                     )
                 })
                 .collect();
             let mut evidence = BTreeMap::new();
-            for (verdict, ..) in &checked {
-                let name = verdict.map_or("none", |v| v.evidence.as_str());
+            for (measured, ..) in &checked {
+                let name = measured.verdict.map_or("none", |v| v.evidence.as_str());
                 *evidence.entry(name.to_string()).or_insert(0) += 1;
             }
             DisguiseResult {
                 disguise,
                 copies: checked.len(),
-                candidates: checked.iter().filter(|c| c.4).count(),
+                candidates: checked.iter().filter(|c| c.3).count(),
                 evidence,
                 d2: Spread::of(checked.iter().map(|c| c.1).collect()),
-                aligned: Spread::of(checked.iter().map(|c| c.2.p99).collect()),
+                aligned: Spread::of(checked.iter().map(|c| c.0.deviation.p99).collect()),
                 worst: {
                     let mut worst: Vec<Aligned> = checked
                         .iter()
                         .map(|c| Aligned {
-                            a: c.3.to_string(),
+                            a: c.2.to_string(),
                             b: String::new(),
-                            deviation: c.2,
+                            deviation: c.0.deviation,
+                            spacing: c.0.spacing,
                         })
                         .collect();
                     worst.sort_by(|x, y| y.deviation.p99.total_cmp(&x.deviation.p99));

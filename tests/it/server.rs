@@ -107,14 +107,7 @@ impl Drop for Server {
 
 /// An OBJ file's text for a mesh.
 pub fn obj(mesh: &salient::mesh::RawMesh) -> Vec<u8> {
-    let mut text = String::new();
-    for p in &mesh.positions {
-        text += &format!("v {} {} {}\n", p.x, p.y, p.z);
-    }
-    for t in &mesh.triangles {
-        text += &format!("f {} {} {}\n", t[0] + 1, t[1] + 1, t[2] + 1);
-    }
-    text.into_bytes()
+    salient::mesh::write::Export::Obj.write(mesh)
 }
 
 pub fn fixture(name: &str) -> Vec<u8> {

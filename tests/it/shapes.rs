@@ -270,12 +270,5 @@ pub fn five_tips() -> Vec<DVec3> {
 
 /// Writes `mesh` as a Wavefront OBJ file.
 pub fn write_obj(path: &std::path::Path, mesh: &RawMesh) {
-    let mut text = String::new();
-    for p in &mesh.positions {
-        text += &format!("v {} {} {}\n", p.x, p.y, p.z);
-    }
-    for t in &mesh.triangles {
-        text += &format!("f {} {} {}\n", t[0] + 1, t[1] + 1, t[2] + 1);
-    }
-    std::fs::write(path, text).unwrap();
+    std::fs::write(path, salient::mesh::write::Export::Obj.write(mesh)).unwrap();
 }

@@ -91,24 +91,7 @@ fn the_capod_horse_as_binary_stl_welds_to_its_obj() {
     let limits = Limits::default();
     let obj = std::fs::read(fixture("capod_horse_m155.obj")).unwrap();
     let mesh = load_bytes(&obj, Format::Obj, &NoResources, &limits).unwrap();
-    let triangles: Vec<stl_io::Triangle> = mesh
-        .triangles
-        .iter()
-        .map(|t| {
-            let [a, b, c] = t.map(|v| mesh.positions[v as usize]);
-            let normal = (b - a)
-                .cross(c - a)
-                .normalize_or_zero()
-                .as_vec3()
-                .to_array();
-            stl_io::Triangle {
-                normal: stl_io::Normal::new(normal),
-                vertices: [a, b, c].map(|p| stl_io::Vertex::new(p.as_vec3().to_array())),
-            }
-        })
-        .collect();
-    let mut stl = Vec::new();
-    stl_io::write_stl(&mut stl, triangles.iter()).unwrap();
+    let stl = salient::mesh::write::Export::BinaryStl.write(&mesh);
     let soup = load_bytes(&stl, Format::Stl, &NoResources, &limits).unwrap();
     let params = MeshParams::default();
     let (from_obj, from_stl) = (
