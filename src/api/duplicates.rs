@@ -17,6 +17,7 @@ use axum::Json;
 use serde::{Deserialize, Serialize};
 
 use super::error::{AppError, ErrorBody};
+use super::models::page_size;
 use super::upload::{AppQuery, MeshUpload};
 use super::{App, AppState};
 use crate::duplicate::{groups, verify, Evidence, Link, Shape, Verdict};
@@ -145,13 +146,7 @@ pub async fn list_duplicates(
     State(app): State<AppState>,
     AppQuery(q): AppQuery<GroupsQuery>,
 ) -> Result<Json<GroupPage>, AppError> {
-    let limit = q.limit.unwrap_or(100);
-    if !(1..=1000).contains(&limit) {
-        return Err(AppError::bad_request(
-            "invalid_query",
-            "limit must be between 1 and 1000",
-        ));
-    }
+    let limit = page_size(q.limit)?;
     let min = q.min_evidence.unwrap_or(Evidence::SameShape);
     let p = app.config.params.similarity.duplicates.clone();
     let (candidates, records) = app

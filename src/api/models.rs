@@ -156,6 +156,18 @@ pub struct ModelPage {
     pub next: Option<String>,
 }
 
+/// The page size of a listing: `limit`, 1–1000, 100 when not given.
+pub(super) fn page_size(limit: Option<usize>) -> Result<usize, AppError> {
+    let limit = limit.unwrap_or(100);
+    if !(1..=1000).contains(&limit) {
+        return Err(AppError::bad_request(
+            "invalid_query",
+            "limit must be between 1 and 1000",
+        ));
+    }
+    Ok(limit)
+}
+
 /// List models in id order, a page at a time.
 #[utoipa::path(
     get,
@@ -171,13 +183,7 @@ pub async fn list_models(
     State(app): State<AppState>,
     AppQuery(q): AppQuery<ListQuery>,
 ) -> Result<Json<ModelPage>, AppError> {
-    let limit = q.limit.unwrap_or(100);
-    if !(1..=1000).contains(&limit) {
-        return Err(AppError::bad_request(
-            "invalid_query",
-            "limit must be between 1 and 1000",
-        ));
-    }
+    let limit = page_size(q.limit)?;
     let snapshot = app.catalog.snapshot();
     let after = q.after.as_deref().unwrap_or("");
     let mut matching = snapshot
