@@ -68,6 +68,10 @@ pub enum Error {
     #[error("signature format {found} is not supported (this version reads {supported}); re-extract the model")]
     SignatureFormat { found: u16, supported: u16 },
 
+    /// A part has no salient feature at any size it was described at (`crate::partial`).
+    #[error("the part has no salient feature at any size it was described at")]
+    NoFeatures,
+
     /// A parameter is outside the range the method is defined for.
     #[error("invalid parameter `{name}`: {message}")]
     InvalidParameter {

@@ -14,6 +14,8 @@
 //!   versioned binary form (§4), and the rule for when a stored one is stale;
 //! - [`emd`]: exact Earth Mover's Distance by the transportation simplex (§5);
 //! - [`similarity`]: ground distance, penalised EMD, D2 baseline distance, lower bound (§5–6);
+//! - [`partial`]: a part of a model as a query: described at a few sizes, fitted into each
+//!   model's features (issue #14);
 //! - [`rank`]: top-k ranking of an in-memory collection with bound-based pruning;
 //! - [`collection`]: mesh folders and a disk cache of their signatures;
 //! - [`model`]: model ids, records and uploaded files (feature `server`);
@@ -46,6 +48,7 @@ pub mod mesh;
 #[cfg(feature = "server")]
 pub mod model;
 pub mod params;
+pub mod partial;
 pub mod pipeline;
 pub mod preview;
 pub mod rank;

@@ -92,6 +92,21 @@ impl Params {
         params
     }
 
+    /// The parameters that extract a mesh normalised into the unit sphere as these extract it
+    /// normalised into a sphere of radius `r` (SPEC §1.4): every length in normalised units
+    /// (`D_g`, `D_e`, the smoothing length; the region histograms' range follows `D_g`)
+    /// divided by `r`, while angles, counts and bins keep their meaning. How a part is
+    /// described at the size it has in its whole model (`crate::partial`).
+    pub fn at_scale(&self, r: f64) -> Params {
+        let mut scaled = self.clone();
+        scaled.ecc.local_size /= r;
+        scaled.salient.suppression_distance /= r;
+        scaled.mesh.smoothing /= r;
+        // Already at the part's size: searched as it is.
+        scaled.similarity.partial.scales = vec![1.0];
+        scaled
+    }
+
     /// Checks that every value is in the range the method is defined for, so that a bad
     /// parameter file is a clear error rather than a panic or a meaningless signature.
     pub fn validate(&self) -> Result<()> {
@@ -162,6 +177,13 @@ impl Params {
                 (1..=4096).contains(&self.d2.bins),
                 "d2.bins",
                 "must be between 1 and 4096",
+            ),
+            (
+                self.similarity.partial.scales.iter().all(|&r| {
+                    e.local_size / r <= 2.0 && m.smoothing / r <= 1.0
+                }),
+                "similarity.partial.scales",
+                "each must leave ecc.local_size / scale at most 2 and mesh.smoothing / scale at most 1",
             ),
         ];
         match checks
@@ -389,6 +411,8 @@ pub struct SimilarityParams {
     pub hybrid: HybridParams,
     /// When two models are one asset (`crate::duplicate`).
     pub duplicates: DuplicateParams,
+    /// Searching with a part of a model (`crate::partial`).
+    pub partial: PartialParams,
 }
 
 impl Default for SimilarityParams {
@@ -399,6 +423,7 @@ impl Default for SimilarityParams {
             penalty_power: 1.0,
             hybrid: HybridParams::default(),
             duplicates: DuplicateParams::default(),
+            partial: PartialParams::default(),
         }
     }
 }
@@ -412,11 +437,22 @@ impl SimilarityParams {
         }
     }
 
-    fn checks(&self) -> [(bool, &'static str, &'static str); 5] {
+    fn checks(&self) -> [(bool, &'static str, &'static str); 6] {
         let h = &self.hybrid;
         let parts = h.terms();
         let d = &self.duplicates;
         [
+            (
+                !self.partial.scales.is_empty()
+                    && self.partial.scales.len() <= PartialParams::MAX_SCALES
+                    && self
+                        .partial
+                        .scales
+                        .iter()
+                        .all(|r| PartialParams::RANGE.contains(r)),
+                "similarity.partial.scales",
+                "must hold 1 to 8 sizes, each in [0.2, 1]",
+            ),
             (
                 [
                     d.d2,
@@ -503,6 +539,34 @@ impl Default for DuplicateParams {
             largest: 0.08,
             largest_per_spacing: 1.0,
             geometry: 1e-4,
+        }
+    }
+}
+
+/// How a part is searched for (`crate::partial`). Ranking parameters: changing them never
+/// makes a stored signature stale.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct PartialParams {
+    /// The sizes a part may have in its whole model: its largest distance from its own
+    /// centroid over the model's (SPEC §1.4's normalising radius). SPEC §1.4 scales every mesh
+    /// to the unit sphere, which magnifies a part against its source, so the part is described
+    /// at each of these sizes ([`Params::at_scale`]) and a model ranks by the best.
+    pub scales: Vec<f64>,
+}
+
+impl PartialParams {
+    /// Sizes a part may be described at: below 0.2 the default `D_g` would outgrow the
+    /// validated range, and a part is at most as large as its model.
+    pub const RANGE: std::ops::RangeInclusive<f64> = 0.2..=1.0;
+    /// At most this many sizes: each is an extraction of the part.
+    pub const MAX_SCALES: usize = 8;
+}
+
+impl Default for PartialParams {
+    fn default() -> Self {
+        Self {
+            scales: vec![0.25, 0.35, 0.5, 0.7],
         }
     }
 }

@@ -80,6 +80,9 @@ pub enum Extent {
     /// all that a query ranked by `d2`, `lfd` or `geodesic` compares, at a fraction of the
     /// cost.
     Global,
+    /// The salient features without the global descriptors: all that a part compares
+    /// ([`crate::partial`]).
+    Features,
 }
 
 /// The signature of a mesh file (with its glTF resources), in its stored form: what a query
@@ -95,6 +98,7 @@ pub fn signature_of_file(
     let signature = match extent {
         Extent::Full => compute(&raw, params)?,
         Extent::Global => compute_global(&raw, params)?,
+        Extent::Features => compute_features(&raw, params)?,
     };
     Signature::from_bytes(&signature.to_bytes())
 }
@@ -152,9 +156,25 @@ pub fn compute(raw: &RawMesh, params: &Params) -> Result<Signature> {
 
 /// Salient features and descriptors of an extraction (SPEC §3–4, §6).
 pub fn describe(extraction: &Extraction, params: &Params) -> Signature {
+    let global = global_descriptors(
+        &extraction.mesh,
+        &extraction.topology,
+        params,
+        extraction.stats.clone(),
+    );
+    with_features(global, extraction, params)
+}
+
+/// The salient features of a loaded mesh ([`Extent::Features`]): no global descriptors.
+pub fn compute_features(raw: &RawMesh, params: &Params) -> Result<Signature> {
+    let extraction = extract(raw, params)?;
+    let bare = bare(&extraction.mesh, params, extraction.stats.clone());
+    Ok(with_features(bare, &extraction, params))
+}
+
+/// `signature` with the salient features of `extraction` (SPEC §3–4).
+fn with_features(mut signature: Signature, extraction: &Extraction, params: &Params) -> Signature {
     let mesh = &extraction.mesh;
-    let mut signature =
-        global_descriptors(mesh, &extraction.topology, params, extraction.stats.clone());
     let clock = Instant::now();
     let (points, salient_stats) = salient::detect(extraction, params);
     let salient_seconds = clock.elapsed().as_secs_f64();
@@ -203,6 +223,23 @@ fn histogram_rng(hash: &MeshHash, stream: u64) -> ChaCha8Rng {
     rng
 }
 
+/// A signature of a prepared mesh with nothing described yet: its hash, parameters and
+/// preparation statistics.
+fn bare(mesh: &PreparedMesh, params: &Params, extraction: ExtractionStats) -> Signature {
+    Signature {
+        mesh_hash: mesh_hash(mesh),
+        features: Vec::new(),
+        d2: Vec::new(),
+        lfd: None,
+        geodesic: None,
+        params: params.clone(),
+        stats: SignatureStats {
+            extraction,
+            ..Default::default()
+        },
+    }
+}
+
 /// A signature with the global descriptors (D2, LFD, geodesic) of a prepared mesh and no
 /// features yet.
 fn global_descriptors(
@@ -211,47 +248,36 @@ fn global_descriptors(
     params: &Params,
     extraction: ExtractionStats,
 ) -> Signature {
+    let mut signature = bare(mesh, params, extraction);
     let clock = Instant::now();
-    let hash = mesh_hash(mesh);
     let whole: Vec<_> = mesh
         .triangles
         .iter()
         .map(|t| t.map(|v| mesh.positions[v as usize]))
         .collect();
     let d2 = &params.d2;
-    let global = d2_histogram(
+    signature.d2 = d2_histogram(
         &whole,
         d2.samples,
         d2.bins,
         2.0,
-        &mut histogram_rng(&hash, u64::MAX),
+        &mut histogram_rng(&signature.mesh_hash, u64::MAX),
     );
     let d2_seconds = clock.elapsed().as_secs_f64();
 
     let clock = Instant::now();
-    let lfd = LightFieldDescriptor::compute(mesh);
+    signature.lfd = Some(LightFieldDescriptor::compute(mesh));
     let lfd_seconds = clock.elapsed().as_secs_f64();
     let clock = Instant::now();
-    let geodesic = GeodesicDescriptor::compute(mesh, topology);
+    signature.geodesic = Some(GeodesicDescriptor::compute(mesh, topology));
     let geodesic_seconds = clock.elapsed().as_secs_f64();
 
-    let mut stats = SignatureStats {
-        extraction,
-        d2_seconds,
-        lfd_seconds,
-        geodesic_seconds,
-        ..Default::default()
-    };
+    let stats = &mut signature.stats;
+    stats.d2_seconds = d2_seconds;
+    stats.lfd_seconds = lfd_seconds;
+    stats.geodesic_seconds = geodesic_seconds;
     stats.extraction.total_seconds += d2_seconds + lfd_seconds + geodesic_seconds;
-    Signature {
-        mesh_hash: hash,
-        features: Vec::new(),
-        d2: global,
-        lfd: Some(lfd),
-        geodesic: Some(geodesic),
-        params: params.clone(),
-        stats,
-    }
+    signature
 }
 
 /// SHA-256 over the prepared mesh's input-coordinate positions and triangles.

@@ -25,6 +25,7 @@ use serde::{Deserialize, Serialize};
 use crate::descriptor::geodesic::Cumulative;
 use crate::descriptor::{histogram_l1, GeodesicDescriptor, LightFieldDescriptor};
 use crate::params::{HybridParams, Params, SimilarityParams};
+use crate::partial::Part;
 use crate::signature::Signature;
 use crate::similarity::{
     centroid_bound, compare_costs, lower_bound, CostMatrix, Features, Summary,
@@ -309,6 +310,14 @@ pub struct Ranking {
     pub evaluated: usize,
     /// Entries rejected by a lower bound without solving their EMD.
     pub pruned: usize,
+}
+
+/// A [`Ranking`] of models by how well they contain a part, and the size the part fitted
+/// each hit at (its radius over the model's, [`crate::params::PartialParams::scales`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct PartRanking {
+    pub ranking: Ranking,
+    pub scales: Vec<f64>,
 }
 
 /// What ranking compares of each model of a collection, with what it precomputes for its
@@ -703,6 +712,33 @@ impl Index {
             Ok(Some(fuse(h, [ecc, d2, lfd, geodesic])))
         };
         self.cascade(k, self.admits(scope), coarse, fine, exact)
+    }
+
+    /// The `k` entries in `scope` that best contain `part` ([`crate::partial`]), best first,
+    /// each with the size the part fitted it at; entries without salient features are left
+    /// out. Pruned by [`Part::bound`] like the other methods: the same top `k` as a full scan.
+    pub fn search_partial(&self, part: &Part, k: usize, scope: &Scope) -> io::Result<PartRanking> {
+        let params = &self.params;
+        let admits = self.admits(scope);
+        let ranking = self.cascade(
+            k,
+            |e| admits(e) && e.summary().features() > 0,
+            |e| part.bound(e.summary()),
+            // The first bound is the only one; it orders the visit.
+            |_, _| Some(0.0),
+            |e, kth| Ok(part.fit(e.features(), params, kth).map(|f| f.distance)),
+        )?;
+        let scales = ranking
+            .hits
+            .iter()
+            .map(|hit| {
+                let e = self.entries.get(self.position[hit.id.as_str()]);
+                part.fit(e.features(), params, f64::INFINITY)
+                    .expect("a ranked entry fits")
+                    .scale
+            })
+            .collect();
+        Ok(PartRanking { ranking, scales })
     }
 
     /// Light field ranking with [`crate::descriptor::lfd::LfdSummary::lower_bound`]; entries without a descriptor are

@@ -164,6 +164,73 @@ impl CostMatrix {
     }
 }
 
+impl CostMatrix {
+    /// Each of `P`'s features at its nearest of `Q`, mean over `P`: the cost of moving `P`'s
+    /// mass with `Q`'s capacities ignored, so a lower bound on [`part_in`].
+    pub fn nearest_bound(&self) -> f64 {
+        if self.m == 0 || self.n == 0 {
+            return f64::INFINITY;
+        }
+        self.cost
+            .chunks_exact(self.n)
+            .map(|row| row.iter().copied().fold(f64::INFINITY, f64::min))
+            .sum::<f64>()
+            / self.m as f64
+    }
+}
+
+/// How far part `P` is from being a part of model `Q` (issue #14): each of `P`'s `m` features
+/// carries mass `1/m`, all of it moves, and each of `Q`'s `n` features takes at most
+/// `1/min(m, n)` — as much as one of `P`'s while `Q` has features enough, so `Q`'s surplus
+/// (the rest of the model) stays unmatched at no cost, and no count penalty. With Eq. 12's
+/// weights `1/n` on `Q`, a part would have to match the whole model. When `n < m` this is the
+/// plain EMD. Infinite when either side has no features.
+pub fn part_in(costs: &CostMatrix) -> f64 {
+    let (m, n) = (costs.m, costs.n);
+    if m == 0 || n == 0 {
+        return f64::INFINITY;
+    }
+    if n <= m {
+        return emd_matrix(&vec![n as u64; m], &vec![m as u64; n], &costs.cost);
+    }
+    // One unit per feature of `P` and of `Q`, and a free source of the `n − m` units `Q`
+    // does not take from `P`: a balanced problem over `n` units, of which `P` moves `m`.
+    let mut cost = costs.cost.clone();
+    cost.extend(std::iter::repeat_n(0.0, n));
+    let mut supply = vec![1; m];
+    supply.push((n - m) as u64);
+    emd_matrix(&supply, &vec![1; n], &cost) * n as f64 / m as f64
+}
+
+/// A lower bound on [`part_in`] from the summaries' projections: every unit of `part`'s mass
+/// moves at least to the nearest of `model`'s features along each 1-Lipschitz projection
+/// (see [`lower_bound`]). Both summaries must have been built with the same `W`.
+pub fn part_bound(part: &Summary, model: &Summary) -> f64 {
+    if part.count == 0 || model.count == 0 {
+        return f64::INFINITY;
+    }
+    part.projections()
+        .zip(model.projections())
+        .map(|(a, b)| nearest_1d(a, b))
+        .fold(0.0, f64::max)
+}
+
+/// Mean over `a` of the distance to the nearest value of `b`, both sorted: one merge.
+fn nearest_1d(a: &[f64], b: &[f64]) -> f64 {
+    let mut j = 0;
+    let total: f64 = a
+        .iter()
+        .map(|&x| {
+            while j + 1 < b.len() && b[j + 1] <= x {
+                j += 1;
+            }
+            let below = (x - b[j]).abs();
+            b.get(j + 1).map_or(below, |&y| below.min((y - x).abs()))
+        })
+        .sum();
+    total / a.len() as f64
+}
+
 /// [`compare`] from precomputed ground distances.
 pub fn compare_costs(costs: &CostMatrix, params: &SimilarityParams) -> Similarity {
     let (m, n) = (costs.m, costs.n);
@@ -420,7 +487,14 @@ fn emd_1d(a: &[f64], b: &[f64]) -> f64 {
 
 #[cfg(test)]
 mod tests {
-    use super::emd_1d;
+    use super::{emd_1d, nearest_1d};
+
+    #[test]
+    fn nearest_by_hand() {
+        assert_eq!(nearest_1d(&[0.0], &[1.0]), 1.0);
+        // 0 → 0, 1.4 → 2 (0.6), 5 → 2 (3).
+        assert!((nearest_1d(&[0.0, 1.4, 5.0], &[-1.0, 0.0, 2.0]) - 3.6 / 3.0).abs() < 1e-12);
+    }
 
     #[test]
     fn one_dimensional_emd_by_hand() {

@@ -34,6 +34,14 @@ for set in shrec07-watertight capod; do
         $salient eval duplicates "$set" --half "$half" --out "$out/duplicates/$set-$half"
     done
 done
+# Partial retrieval: a part cut from every model of each half, searched as a part and as a
+# whole model; the part sizes were chosen on the tuning halves.
+for set in shrec07-watertight capod; do
+    for half in tuning held-out; do
+        $salient eval partial "$set" --half "$half" --cache-dir "$cache/$set" \
+            --out "$out/partial/$set-$half"
+    done
+done
 for mesh in shrec07-watertight/ant/81.off shrec07-watertight/teddy/171.off \
     shrec07-watertight/hand/181.off capod/dog/m100.obj; do
     name="$(basename "$(dirname "$mesh")")-$(basename "${mesh%.*}")"

@@ -164,6 +164,7 @@ impl From<crate::Error> for AppError {
             E::NoTriangles
             | E::OnlyDegenerate { .. }
             | E::TooFewVertices { .. }
+            | E::NoFeatures
             | E::ExtentOutOfRange { .. } => AppError::Unprocessable(e.to_string()),
             E::Parse { .. }
             | E::IndexOutOfRange { .. }

@@ -10,11 +10,16 @@ use serde::{Deserialize, Serialize};
 use super::error::{AppError, ErrorBody};
 use super::models::no_model;
 use super::upload::{AppPath, AppQuery, MeshUpload, ModelPath};
-use super::AppState;
+use super::{AppState, Snapshot};
+use crate::mesh::load_bytes;
 use crate::model::ModelId;
+use crate::model::Upload;
 use crate::params::SimilarityParams;
+use crate::partial::Part;
 use crate::pipeline::Extent;
-use crate::rank::{contributions, distance, hybrid_parts, Method, Ranking, Scope, PARTS};
+use crate::rank::{
+    contributions, distance, hybrid_parts, Hit, Method, PartRanking, Ranking, Scope, PARTS,
+};
 use crate::signature::Signature;
 use crate::similarity::explain;
 
@@ -39,6 +44,37 @@ pub struct SearchQuery {
     /// Explain each result: its distance by every method, and which salient features of the
     /// query the EMD matched to which of the result's (default false).
     pub explain: Option<bool>,
+    /// `whole` (default): the upload is a model. `partial` (`POST /v1/search` only): the
+    /// upload is a piece of one — cut from it, with an open boundary — and the results are
+    /// the models with a part like it, ranked by how well all of its salient features fit
+    /// among theirs. `method`, `w` and `explain` do not apply.
+    #[param(value_type = Option<String>, pattern = "^(whole|partial)$")]
+    pub mode: Option<SearchMode>,
+    /// With `mode=partial`: the part's size in its model, when known (its largest distance
+    /// from its own centroid over the model's, in [0.2, 1]). Default: each of the
+    /// configured sizes (`similarity.partial.scales`) is tried, and a model ranks by the best.
+    #[param(minimum = 0.2, maximum = 1.0)]
+    pub part_scale: Option<f64>,
+}
+
+/// What an uploaded query is.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize, utoipa::ToSchema)]
+#[serde(rename_all = "lowercase")]
+pub enum SearchMode {
+    /// A whole model.
+    #[default]
+    Whole,
+    /// A piece of a model ([`crate::partial`]).
+    Partial,
+}
+
+/// A size a part was described at (`mode=partial`).
+#[derive(Debug, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct PartSize {
+    /// The part's radius over the model's.
+    pub scale: f64,
+    /// Its salient features at that size.
+    pub features: usize,
 }
 
 /// One ranked model.
@@ -52,6 +88,10 @@ pub struct SearchHit {
     /// Lower is more similar: the weighted sum of the parts' distances, each divided by its
     /// scale (`hybrid`), `SIM` of SPEC §5 (`ecc`), or the D2, LFD or geodesic distance.
     pub distance: f64,
+    /// With `mode=partial`: the size (part radius over model radius) the part fitted this
+    /// model at.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub part_scale: Option<f64>,
     /// With `explain=true`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub explanation: Option<Explanation>,
@@ -114,8 +154,10 @@ pub struct Timings {
 /// A ranked list.
 #[derive(Debug, Serialize, Deserialize, utoipa::ToSchema)]
 pub struct SearchResponse {
+    /// The method ranked by; `ecc` under `mode=partial` (salient features only).
     #[schema(value_type = String)]
     pub method: Method,
+    pub mode: SearchMode,
     pub k: usize,
     pub results: Vec<SearchHit>,
     /// Models whose exact distance was computed, and models rejected by a lower bound.
@@ -133,6 +175,9 @@ pub struct SearchResponse {
     /// With `explain=true`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub query: Option<QueryFeatures>,
+    /// With `mode=partial`: the sizes the part was described at.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub part_sizes: Option<Vec<PartSize>>,
     pub timings: Timings,
 }
 
@@ -168,6 +213,122 @@ fn explanation(query: &Signature, result: &Signature, params: &SimilarityParams)
     }
 }
 
+/// The `k` a query asks for, within the server's limit.
+fn requested_k(app: &AppState, q: &SearchQuery) -> Result<usize, AppError> {
+    let k = q.k.unwrap_or(10);
+    if k == 0 || k > app.config.max_k {
+        return Err(AppError::bad_request(
+            "invalid_query",
+            format!("k must be between 1 and {}", app.config.max_k),
+        ));
+    }
+    Ok(k)
+}
+
+/// Whether a model has `tag` (every model when there is none).
+fn tagged<'a>(catalog: &'a Snapshot, tag: &'a Option<String>) -> impl Fn(&str) -> bool + Sync + 'a {
+    move |id: &str| {
+        tag.as_ref()
+            .is_none_or(|t| catalog.records.get(id).is_some_and(|r| r.tags.contains(t)))
+    }
+}
+
+/// Ranked hits with what the catalogue records of each.
+fn search_hits(catalog: &Snapshot, hits: Vec<Hit>) -> Vec<SearchHit> {
+    hits.into_iter()
+        .enumerate()
+        .map(|(i, hit)| {
+            let record = catalog.records.get(hit.id.as_str());
+            SearchHit {
+                explanation: None,
+                part_scale: None,
+                rank: i + 1,
+                name: record.and_then(|r| r.name.clone()),
+                tags: record.map(|r| r.tags.clone()).unwrap_or_default(),
+                class: record.and_then(|r| r.class.clone()),
+                id: hit.id,
+                distance: hit.distance,
+            }
+        })
+        .collect()
+}
+
+/// Search with a part (`mode=partial`): the part described at each size on the extraction
+/// pool, then the models that best contain it ([`crate::rank::Index::search_partial`]).
+async fn search_part(
+    app: &AppState,
+    q: SearchQuery,
+    upload: Upload,
+    clock: Instant,
+) -> Result<Json<SearchResponse>, AppError> {
+    if q.method.is_some() || q.w.is_some() || q.explain.is_some() {
+        return Err(AppError::bad_request(
+            "invalid_query",
+            "method, w and explain do not apply to mode=partial",
+        ));
+    }
+    let k = requested_k(app, &q)?;
+    let scales = match q.part_scale {
+        Some(r) => vec![r],
+        None => app.config.params.similarity.partial.scales.clone(),
+    };
+    let params = app.config.params.clone();
+    let limits = app.config.limits;
+    let part = app
+        .pool
+        .run(move || {
+            let raw = load_bytes(&upload.mesh, upload.format, &upload.resources, &limits)?;
+            Part::extract(&raw, &params, &scales, &params.similarity)
+        })
+        .await??;
+    let extract_ms = clock.elapsed().as_secs_f64() * 1e3;
+    let search_clock = Instant::now();
+    let part = Arc::new(part);
+    let ranked = part.clone();
+    let tag = q.tag;
+    let (results, evaluated, pruned) = app
+        .read_catalog(move |catalog| {
+            let tagged = tagged(catalog, &tag);
+            let scope = Scope {
+                without: None,
+                keep: tag.is_some().then_some(&tagged as _),
+            };
+            let PartRanking { ranking, scales } =
+                catalog.index.search_partial(&ranked, k, &scope)?;
+            let mut results = search_hits(catalog, ranking.hits);
+            for (hit, scale) in results.iter_mut().zip(scales) {
+                hit.part_scale = Some(scale);
+            }
+            Ok((results, ranking.evaluated, ranking.pruned))
+        })
+        .await?
+        .map_err(AppError::index)?;
+    let search_seconds = search_clock.elapsed().as_secs_f64();
+    app.metrics.search_seconds.observe(search_seconds);
+    let part_sizes: Vec<PartSize> = part
+        .sizes()
+        .map(|(scale, features)| PartSize { scale, features })
+        .collect();
+    Ok(Json(SearchResponse {
+        method: Method::Ecc,
+        mode: SearchMode::Partial,
+        k,
+        results,
+        evaluated,
+        pruned,
+        left_out: 0,
+        partial: 0,
+        query_features: part_sizes.iter().map(|s| s.features).max().unwrap_or(0),
+        query: None,
+        part_sizes: Some(part_sizes),
+        timings: Timings {
+            extract_ms,
+            search_ms: search_seconds * 1e3,
+            total_ms: clock.elapsed().as_secs_f64() * 1e3,
+        },
+    }))
+}
+
 /// Ranks the catalog against `query` off the async threads.
 async fn rank(
     app: &AppState,
@@ -177,13 +338,7 @@ async fn rank(
     clock: Instant,
     extract_ms: f64,
 ) -> Result<Json<SearchResponse>, AppError> {
-    let k = q.k.unwrap_or(10);
-    if k == 0 || k > app.config.max_k {
-        return Err(AppError::bad_request(
-            "invalid_query",
-            format!("k must be between 1 and {}", app.config.max_k),
-        ));
-    }
+    let k = requested_k(app, &q)?;
     let method = q.method.unwrap_or_default();
     let mut params = app.config.params.similarity.clone();
     if let Some(w) = q.w {
@@ -212,10 +367,7 @@ async fn rank(
     let explained = explain_hits.then(|| (query.clone(), params.clone()));
     let results = app
         .read_catalog(move |catalog| {
-            let tagged = |id: &str| {
-                tag.as_ref()
-                    .is_none_or(|t| catalog.records.get(id).is_some_and(|r| r.tags.contains(t)))
-            };
+            let tagged = tagged(catalog, &tag);
             let scope = Scope {
                 without: exclude.as_ref().map(ModelId::as_str),
                 keep: tag.is_some().then_some(&tagged as _),
@@ -229,22 +381,7 @@ async fn rank(
                 .search_with(&query, k, method, &params, &scope)?;
             let left_out = catalog.index.incomparable(method, &scope);
             let partial = catalog.index.partial(method, &scope);
-            let results = hits
-                .into_iter()
-                .enumerate()
-                .map(|(i, hit)| {
-                    let record = catalog.records.get(hit.id.as_str());
-                    SearchHit {
-                        explanation: None,
-                        rank: i + 1,
-                        name: record.and_then(|r| r.name.clone()),
-                        tags: record.map(|r| r.tags.clone()).unwrap_or_default(),
-                        class: record.and_then(|r| r.class.clone()),
-                        id: hit.id,
-                        distance: hit.distance,
-                    }
-                })
-                .collect::<Vec<_>>();
+            let results = search_hits(catalog, hits);
             Ok((results, evaluated, pruned, left_out, partial))
         })
         .await?
@@ -273,6 +410,7 @@ async fn rank(
     }
     Ok(Json(SearchResponse {
         method,
+        mode: SearchMode::Whole,
         k,
         results,
         evaluated,
@@ -281,6 +419,7 @@ async fn rank(
         partial,
         query_features,
         query: query_description,
+        part_sizes: None,
         timings: Timings {
             extract_ms,
             search_ms: search_seconds * 1e3,
@@ -310,6 +449,15 @@ pub async fn search(
     upload: MeshUpload,
 ) -> Result<Json<SearchResponse>, AppError> {
     let clock = Instant::now();
+    if q.mode == Some(SearchMode::Partial) {
+        return search_part(&app, q, upload.upload, clock).await;
+    }
+    if q.part_scale.is_some() {
+        return Err(AppError::bad_request(
+            "invalid_query",
+            "part_scale applies to mode=partial only",
+        ));
+    }
     // A method that compares no salient features (and no explanation, which shows every
     // method's distance) needs no ECC of the upload: most of an extraction's cost.
     let method = q.method.unwrap_or_default();
@@ -343,6 +491,12 @@ pub async fn similar(
     AppQuery(q): AppQuery<SearchQuery>,
 ) -> Result<Json<SearchResponse>, AppError> {
     let id = path.id()?;
+    if q.mode == Some(SearchMode::Partial) || q.part_scale.is_some() {
+        return Err(AppError::bad_request(
+            "invalid_query",
+            "a stored model is a whole model: mode=partial applies to POST /v1/search",
+        ));
+    }
     let clock = Instant::now();
     let stored = id.clone();
     let signature = app

@@ -9,7 +9,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 use salient::collection::{SignatureCache, CACHE_DIR};
 use salient::eval::retrieval::{self, EvalMethod};
 use salient::eval::robustness::Perturbation;
-use salient::eval::{duplicates, robustness, study, tune, LabelledCollection, Progress};
+use salient::eval::{duplicates, partial, robustness, study, tune, LabelledCollection, Progress};
 use salient::mesh::load_path;
 use salient::Limits;
 
@@ -34,6 +34,10 @@ enum Command {
     /// near-duplicate search groups them: precision and recall of duplicate pairs per
     /// evidence level.
     Duplicates(DuplicatesArgs),
+    /// Cut a part from every model of a half (a ball of 30–50 % of its radius around a random
+    /// surface point) and query it against the whole collection as a part and as a whole
+    /// model: how often its source ranks first and within the top 5, and its class first.
+    Partial(PartialArgs),
     /// Choose the hybrid's weights, scales and penalty power on the tuning halves of the
     /// collections together; judge them on the held-out halves.
     Tune(TuneArgs),
@@ -46,13 +50,28 @@ struct DuplicatesArgs {
     /// The models that take part: the tuning half (thresholds are chosen on it), the
     /// held-out half (they are judged on it) or all.
     #[arg(long, value_enum, default_value = "held-out")]
-    half: duplicates::Half,
+    half: study::Half,
     /// Where duplicates.json and duplicates.md go.
     #[arg(long, default_value = "salient-duplicates")]
     out: PathBuf,
     /// Parameters as JSON (`similarity.duplicates` holds the thresholds).
     #[arg(long)]
     params: Option<PathBuf>,
+}
+
+#[derive(Debug, clap::Args)]
+struct PartialArgs {
+    /// The labelled collection.
+    dir: PathBuf,
+    /// The models parts are cut from: the tuning half (the sizes are chosen on it), the
+    /// held-out half (they are judged on it) or all. Every model is searched.
+    #[arg(long, value_enum, default_value = "held-out")]
+    half: study::Half,
+    /// Where partial.json and partial.md go.
+    #[arg(long, default_value = "salient-partial")]
+    out: PathBuf,
+    #[command(flatten)]
+    common: Common,
 }
 
 #[derive(Debug, clap::Args)]
@@ -143,7 +162,23 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         Command::Study(args) => study(args),
         Command::Tune(args) => tune(args),
         Command::Duplicates(args) => duplicates(args),
+        Command::Partial(args) => partial(args),
     }
+}
+
+fn partial(args: PartialArgs) -> anyhow::Result<()> {
+    let params = super::load_params(args.common.params.as_ref())?;
+    params.validate()?;
+    let collection = LabelledCollection::open(&args.dir)?;
+    let report = partial::run(
+        &collection,
+        args.half,
+        &params,
+        &SignatureCache::new(args.common.cache_dir(&args.dir), &params),
+        &Limits::default(),
+        &Bar::default(),
+    )?;
+    written(&args.out, report.write(&args.out), report.markdown())
 }
 
 fn duplicates(args: DuplicatesArgs) -> anyhow::Result<()> {

@@ -1,4 +1,5 @@
-//! `salient search QUERY COLLECTION_DIR [-k 10] [--method hybrid|ecc|d2|lfd] [--json]`.
+//! `salient search QUERY COLLECTION_DIR [-k 10] [--method hybrid|ecc|d2|lfd] [--partial
+//! [--part-scale R]] [--json]`.
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -8,7 +9,10 @@ use indicatif::{ProgressBar, ProgressStyle};
 use serde::Serialize;
 
 use salient::collection::{find_meshes, SignatureCache, Source};
-use salient::rank::{Index, Method};
+use salient::mesh::load_path;
+use salient::partial::Part;
+use salient::rank::{Index, Method, Scope};
+use salient::signature::Signature;
 use salient::Limits;
 
 #[derive(Debug, clap::Args)]
@@ -23,8 +27,17 @@ pub struct Args {
     /// hybrid (the default: ECC, D2 and LFD distances fused), ecc (salient features,
     /// penalised EMD), d2 (global shape distribution baseline) or lfd (Light Field Descriptor
     /// baseline).
-    #[arg(long, default_value = "hybrid")]
-    method: Method,
+    #[arg(long)]
+    method: Option<Method>,
+    /// The query is a piece of a model (cut from it, with an open boundary): rank the models
+    /// that contain a part like it (`salient::partial`). Compares salient features only, so
+    /// `--method` does not apply.
+    #[arg(long, conflicts_with = "method")]
+    partial: bool,
+    /// With --partial: the part's size in its model, when known (its radius over the model's,
+    /// in [0.2, 1]); default: each of `similarity.partial.scales`.
+    #[arg(long, requires = "partial")]
+    part_scale: Option<f64>,
     /// Print JSON.
     #[arg(long)]
     json: bool,
@@ -40,6 +53,8 @@ pub struct Args {
 struct Output<'a> {
     query: &'a Path,
     method: Method,
+    /// Whether the query was searched as a part (`--partial`).
+    partial: bool,
     k: usize,
     results: Vec<Row>,
     collection: usize,
@@ -57,6 +72,15 @@ struct Row {
     rank: usize,
     id: String,
     distance: f64,
+    /// With `--partial`: the size (part radius over model radius) it fitted this model at.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    part_scale: Option<f64>,
+}
+
+/// What is searched for: a whole model, or a part of one.
+enum Query {
+    Whole(Box<Signature>),
+    Part(Part),
 }
 
 #[derive(Serialize)]
@@ -74,24 +98,42 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     };
     let limits = Limits::default();
     let files = find_meshes(&args.collection)?;
-    let query = if args
+    let method = args.method.unwrap_or_default();
+    let query = if args.partial {
+        let scales = match args.part_scale {
+            Some(r) => vec![r],
+            None => params.similarity.partial.scales.clone(),
+        };
+        let raw =
+            load_path(&args.query, &limits).with_context(|| args.query.display().to_string())?;
+        Query::Part(
+            Part::extract(&raw, &params, &scales, &params.similarity)
+                .with_context(|| args.query.display().to_string())?,
+        )
+    } else if args
         .query
         .extension()
         .is_some_and(|e| e.eq_ignore_ascii_case("json"))
     {
-        super::compare::signature_of(&args.query, &params)?
+        Query::Whole(Box::new(super::compare::signature_of(
+            &args.query,
+            &params,
+        )?))
     } else {
-        cache
-            .signature(&args.query, &params, &limits)
-            .with_context(|| args.query.display().to_string())?
-            .0
+        Query::Whole(Box::new(
+            cache
+                .signature(&args.query, &params, &limits)
+                .with_context(|| args.query.display().to_string())?
+                .0,
+        ))
     };
-    if !args.method.comparable(&query) {
-        anyhow::bail!(
-            "{}: the query signature has no {} descriptor (made by an older salient); extract it again",
-            args.query.display(),
-            args.method
-        );
+    if let Query::Whole(signature) = &query {
+        if !method.comparable(signature) {
+            anyhow::bail!(
+                "{}: the query signature has no {method} descriptor (made by an older salient); extract it again",
+                args.query.display(),
+            );
+        }
     }
 
     let clock = Instant::now();
@@ -131,9 +173,21 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let index_seconds = clock.elapsed().as_secs_f64();
 
     let clock = Instant::now();
-    let ranking = index
-        .search(&query, args.k, args.method)
-        .context("cannot read the index's file in the temporary folder")?;
+    let unreadable = "cannot read the index's file in the temporary folder";
+    let (ranking, scales) = match &query {
+        Query::Whole(signature) => (
+            index
+                .search(signature, args.k, method)
+                .context(unreadable)?,
+            Vec::new(),
+        ),
+        Query::Part(part) => {
+            let ranked = index
+                .search_partial(part, args.k, &Scope::default())
+                .context(unreadable)?;
+            (ranked.ranking, ranked.scales)
+        }
+    };
     let search_seconds = clock.elapsed().as_secs_f64();
     let results: Vec<Row> = ranking
         .hits
@@ -143,12 +197,14 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             rank: i + 1,
             id: hit.id,
             distance: hit.distance,
+            part_scale: scales.get(i).copied(),
         })
         .collect();
     if args.json {
         let output = Output {
             query: &args.query,
-            method: args.method,
+            method: if args.partial { Method::Ecc } else { method },
+            partial: args.partial,
             k: args.k,
             results,
             collection: index.len(),
@@ -163,7 +219,13 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         println!("{}", serde_json::to_string(&output)?);
     } else {
         for r in &results {
-            println!("{:>4}  {:.6}  {}", r.rank, r.distance, r.id);
+            match r.part_scale {
+                Some(scale) => println!(
+                    "{:>4}  {:.6}  {}  (part at {scale})",
+                    r.rank, r.distance, r.id
+                ),
+                None => println!("{:>4}  {:.6}  {}", r.rank, r.distance, r.id),
+            }
         }
         eprintln!(
             "{} models ({extracted} extracted, {cached} cached, {} failed); search {:.1} ms, {} exact comparisons",

@@ -4,6 +4,37 @@
 use glam::DVec3;
 use rand::Rng;
 
+/// `samples` points uniformly by area on `triangles`; `None` for a surface of no area.
+pub fn sample_surface(
+    triangles: &[[DVec3; 3]],
+    samples: usize,
+    rng: &mut impl Rng,
+) -> Option<Vec<DVec3>> {
+    let mut cumulative = Vec::with_capacity(triangles.len());
+    let mut total = 0.0;
+    for [a, b, c] in triangles {
+        total += (*b - *a).cross(*c - *a).length();
+        cumulative.push(total);
+    }
+    if total <= 0.0 {
+        return None;
+    }
+    Some(
+        (0..samples)
+            .map(|_| {
+                let target = rng.gen::<f64>() * total;
+                let t = cumulative
+                    .partition_point(|&c| c <= target)
+                    .min(triangles.len() - 1);
+                let [a, b, c] = triangles[t];
+                // Uniform on a triangle: the square root keeps the density flat (Osada §4).
+                let (r1, r2) = (rng.gen::<f64>().sqrt(), rng.gen::<f64>());
+                a * (1.0 - r1) + b * (r1 * (1.0 - r2)) + c * (r1 * r2)
+            })
+            .collect(),
+    )
+}
+
 /// Samples `samples` points uniformly by area on `triangles`, measures all pairs and returns
 /// a `bins`-bin histogram over `[0, range]` normalised to sum 1 (longer distances fall in the
 /// last bin). An empty surface gives all zeros.
@@ -15,27 +46,9 @@ pub fn d2_histogram(
     rng: &mut impl Rng,
 ) -> Vec<f32> {
     let mut histogram = vec![0.0; bins];
-    let mut cumulative = Vec::with_capacity(triangles.len());
-    let mut total = 0.0;
-    for [a, b, c] in triangles {
-        total += (*b - *a).cross(*c - *a).length();
-        cumulative.push(total);
-    }
-    if total <= 0.0 {
+    let Some(points) = sample_surface(triangles, samples, rng) else {
         return histogram;
-    }
-    let points: Vec<DVec3> = (0..samples)
-        .map(|_| {
-            let target = rng.gen::<f64>() * total;
-            let t = cumulative
-                .partition_point(|&c| c <= target)
-                .min(triangles.len() - 1);
-            let [a, b, c] = triangles[t];
-            // Uniform on a triangle: the square root keeps the density flat (Osada §4).
-            let (r1, r2) = (rng.gen::<f64>().sqrt(), rng.gen::<f64>());
-            a * (1.0 - r1) + b * (r1 * (1.0 - r2)) + c * (r1 * r2)
-        })
-        .collect();
+    };
     let mut counts = vec![0u64; bins];
     let scale = bins as f64 / range;
     // Coordinates apart and the bins of a row computed before they are counted, so that the

@@ -6,6 +6,7 @@
 pub mod d2;
 pub mod geodesic;
 pub mod lfd;
+pub mod patch;
 
 pub use d2::{d2_histogram, histogram_l1};
 pub use geodesic::GeodesicDescriptor;

@@ -24,6 +24,7 @@ use serde::Serialize;
 
 use super::report::{score, write, write_json, Table};
 use super::robustness::random_rotation;
+use super::study::Half;
 use super::{LabelledCollection, Progress};
 use crate::duplicate::{groups, judge, Deviation, Evidence, Link, Shape, Verdict};
 use crate::mesh::load::NoResources;
@@ -41,16 +42,6 @@ fn sha256_hex(bytes: &[u8]) -> String {
     hex::encode(sha2::Sha256::digest(bytes))
 }
 use crate::Result;
-
-/// Which of a collection's models take part.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
-pub enum Half {
-    /// The half the thresholds are chosen on.
-    Tuning,
-    /// The half they are judged on.
-    HeldOut,
-    All,
-}
 
 /// How a copy was disguised.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Serialize)]
@@ -229,12 +220,7 @@ pub fn run(
     limits: &Limits,
     progress: &dyn Progress,
 ) -> Result<DuplicatesReport> {
-    let (tuning, held_out) = super::study::halves(collection);
-    let chosen = match half {
-        Half::Tuning => tuning,
-        Half::HeldOut => held_out,
-        Half::All => (0..collection.models.len()).collect(),
-    };
+    let chosen = half.models(collection);
     let p = &params.similarity.duplicates;
 
     let clock = Instant::now();

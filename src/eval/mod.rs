@@ -7,6 +7,7 @@
 
 pub mod duplicates;
 pub mod metrics;
+pub mod partial;
 pub mod report;
 pub mod retrieval;
 pub mod robustness;

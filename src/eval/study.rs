@@ -124,6 +124,28 @@ fn with(base: &Params, changes: &[Change]) -> Params {
     params
 }
 
+/// Which of a collection's models take part in an evaluation.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum Half {
+    /// The half parameters are chosen on.
+    Tuning,
+    /// The half they are judged on.
+    HeldOut,
+    All,
+}
+
+impl Half {
+    /// The indices of this half's models ([`halves`]).
+    pub fn models(self, collection: &LabelledCollection) -> Vec<usize> {
+        let (tuning, held_out) = halves(collection);
+        match self {
+            Half::Tuning => tuning,
+            Half::HeldOut => held_out,
+            Half::All => (0..collection.models.len()).collect(),
+        }
+    }
+}
+
 /// Each class's models alternately into a tuning and a held-out half, in id order.
 pub fn halves(collection: &LabelledCollection) -> (Vec<usize>, Vec<usize>) {
     let (mut tune, mut test) = (Vec::new(), Vec::new());

@@ -4,6 +4,7 @@
 pub mod load;
 pub mod orient;
 pub mod prepare;
+pub mod refine;
 pub mod simplify;
 pub mod smooth;
 pub mod topology;

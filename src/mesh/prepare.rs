@@ -104,7 +104,7 @@ pub fn prepare(raw: &RawMesh, params: &MeshParams) -> Result<PreparedMesh> {
 
 /// SPEC §1.4: the area-weighted surface centroid goes to the origin, the farthest vertex to
 /// distance 1.
-fn normalisation(positions: &[DVec3], triangles: &[[u32; 3]]) -> (DVec3, f64) {
+pub fn normalisation(positions: &[DVec3], triangles: &[[u32; 3]]) -> (DVec3, f64) {
     let (mut weighted, mut area) = (DVec3::ZERO, 0.0);
     for t in triangles {
         let [a, b, c] = t.map(|v| positions[v as usize]);

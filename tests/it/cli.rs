@@ -332,3 +332,58 @@ fn search_ranks_a_folder_and_caches_signatures() {
     ]);
     assert_ne!(bad.status.code(), Some(0));
 }
+
+#[test]
+fn search_partial_finds_the_model_a_piece_was_cut_from() {
+    let dir = tempfile::tempdir().unwrap();
+    let collection = dir.path().join("models");
+    std::fs::create_dir_all(&collection).unwrap();
+    let star = shapes::star(4, &shapes::five_tips());
+    shapes::write_obj(&collection.join("star.obj"), &star);
+    shapes::write_obj(&collection.join("tube.obj"), &shapes::tube(0.3, 30, 24));
+    shapes::write_obj(&collection.join("sphere.obj"), &shapes::icosphere(4));
+    let part = dir.path().join("spike.obj");
+    let spike = salient::partial::cut(&star, DVec3::new(0.9, 0.0, 0.0), 0.6).unwrap();
+    shapes::write_obj(&part, &spike);
+    let (part, collection) = (part.to_str().unwrap(), collection.to_str().unwrap());
+
+    let found = json_of(&salient(&[
+        "search",
+        part,
+        collection,
+        "--partial",
+        "-k",
+        "2",
+        "--json",
+    ]));
+    assert_eq!(found["partial"], true);
+    assert_eq!(found["results"][0]["id"], "star.obj", "{found}");
+    assert!(found["results"][0]["part_scale"].is_f64());
+    let known = json_of(&salient(&[
+        "search",
+        part,
+        collection,
+        "--partial",
+        "--part-scale",
+        "0.5",
+        "--json",
+    ]));
+    assert_eq!(known["results"][0]["part_scale"], 0.5);
+
+    for bad in [
+        vec!["search", part, collection, "--partial", "--method", "ecc"],
+        vec![
+            "search",
+            part,
+            collection,
+            "--partial",
+            "--part-scale",
+            "0.1",
+        ],
+        vec!["search", part, collection, "--part-scale", "0.5"],
+    ] {
+        let out = salient(&bad);
+        assert_ne!(out.status.code(), Some(0), "{bad:?}");
+        assert!(!out.stderr.is_empty(), "{bad:?}");
+    }
+}

@@ -29,6 +29,7 @@ mod ingest;
 mod lfd;
 mod load;
 mod openapi;
+mod partial;
 mod previews;
 mod rank;
 mod reindex;

@@ -1,0 +1,409 @@
+//! `salient eval partial`: how well a piece of a model finds its source (issue #14). Every
+//! model of a half gets one part — the surface inside a ball of 30–50 % of its radius around a
+//! random surface point, its largest connected piece ([`cut`]) — queried against the whole
+//! collection: as a part ([`Index::search_partial`]), as a whole model (the default method, as
+//! `/v1/search` without `mode`), and by patch descriptors ([`crate::descriptor::patch`]:
+//! measured here, not yet stored or served). Reported: how often the source ranks first and
+//! within the top 5, and how often the first result is of the source's class.
+
+use std::collections::BTreeMap;
+use std::path::Path;
+use std::time::Instant;
+
+use glam::DVec3;
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use rayon::prelude::*;
+use serde::Serialize;
+
+use super::report::{score, write, write_json, Table};
+use super::retrieval::signatures;
+use super::study::Half;
+use super::{LabelledCollection, Progress};
+use crate::collection::SignatureCache;
+use crate::descriptor::d2::sample_surface;
+use crate::descriptor::patch::{piece, Patches, CENTRES, RADII};
+use crate::mesh::prepare::normalisation;
+use crate::mesh::{load_path, RawMesh};
+use crate::params::{Limits, Params, PartialParams};
+use crate::partial::{cut, Part};
+use crate::pipeline::compute;
+use crate::rank::{Hit, Index, Method, Scope};
+use crate::salient::area as triangle_area;
+use crate::Result;
+
+/// Results within which the source's rank is recorded.
+const DEPTH: usize = 10;
+
+/// The ball around the cut point, as a fraction of the model's radius (SPEC §1.4's).
+const BALL: std::ops::Range<f64> = 0.3..0.5;
+
+/// Random cut points tried per model before giving up on a part.
+const ATTEMPTS: usize = 8;
+
+/// A part keeps at least this share of its model's area, and at most this share: a sliver
+/// says nothing, and a ball that swallows the model is not a part.
+const AREA_SHARE: std::ops::RangeInclusive<f64> = 0.02..=0.8;
+
+/// What the benchmark found.
+#[derive(Debug, Clone, Serialize)]
+pub struct PartialReport {
+    pub collection: String,
+    pub half: String,
+    pub models: usize,
+    pub params: PartialParams,
+    /// One row per search mode: `partial` and `whole`.
+    pub modes: Vec<ModeResult>,
+    /// Per class of the source, the partial mode's rates.
+    pub per_class: BTreeMap<String, ModeResult>,
+    pub parts: Vec<PartResult>,
+    /// Models no part could be cut from (every attempt outside [`AREA_SHARE`]).
+    pub uncut: Vec<String>,
+    pub seconds: Seconds,
+}
+
+/// The rates of one search mode over the parts.
+#[derive(Debug, Clone, Serialize)]
+pub struct ModeResult {
+    pub mode: String,
+    pub parts: usize,
+    pub source_first: f64,
+    pub source_top5: f64,
+    pub class_first: f64,
+}
+
+/// One part and where each mode ranked its source.
+#[derive(Debug, Clone, Serialize)]
+pub struct PartResult {
+    pub source: String,
+    pub class: String,
+    /// The ball's radius over the model's.
+    pub ball: f64,
+    /// The part's share of the model's area, and its radius over the model's.
+    pub area_share: f64,
+    pub size: f64,
+    pub vertices: usize,
+    /// Salient features at each size the part was described at.
+    pub features: Vec<(f64, usize)>,
+    /// What each mode found.
+    pub partial: Found,
+    pub whole: Found,
+    pub patches: Found,
+    /// The size the part fitted its source at, when ranked.
+    pub fitted_scale: Option<f64>,
+}
+
+/// What one search mode found for a part.
+#[derive(Debug, Clone, Serialize)]
+pub struct Found {
+    /// The source's rank (1 = first) within the first [`DEPTH`].
+    pub rank: Option<usize>,
+    /// The first result.
+    pub first: String,
+}
+
+impl Found {
+    fn of(hits: &[Hit], source: &str) -> Self {
+        Self {
+            rank: hits.iter().position(|h| h.id == source).map(|r| r + 1),
+            first: hits.first().map(|h| h.id.clone()).unwrap_or_default(),
+        }
+    }
+}
+
+#[derive(Debug, Clone, Default, Serialize)]
+pub struct Seconds {
+    pub signatures: f64,
+    /// Describing the parts at every size, and as whole models.
+    pub describe_parts: f64,
+    pub search: f64,
+}
+
+/// A cut part and what it was cut from.
+struct Cut {
+    source: usize,
+    ball: f64,
+    area_share: f64,
+    size: f64,
+    raw: RawMesh,
+}
+
+/// Runs the benchmark on `half` of `collection`, against all of it. Deterministic: the cut of
+/// each model is seeded by its position.
+pub fn run(
+    collection: &LabelledCollection,
+    half: Half,
+    params: &Params,
+    cache: &SignatureCache,
+    limits: &Limits,
+    progress: &dyn Progress,
+) -> Result<PartialReport> {
+    let clock = Instant::now();
+    let (stored, _) = signatures(collection, cache, params, limits, None, progress)?;
+    let mut index = Index::new(params.similarity.clone());
+    for (model, signature) in collection.models.iter().zip(&stored) {
+        index
+            .insert(model.id.as_str(), signature)
+            .map_err(|e| crate::Error::Io {
+                path: std::env::temp_dir(),
+                source: e,
+            })?;
+    }
+    progress.start("patches", collection.models.len());
+    let patches: Vec<Patches> = collection
+        .models
+        .par_iter()
+        .map(|m| {
+            let raw = load_path(&m.path, limits)?;
+            let mesh = crate::mesh::prepare(&raw, &params.mesh)?;
+            progress.advance(&m.id);
+            Ok(Patches::compute(&mesh.positions, &mesh.triangles, 7))
+        })
+        .collect::<Result<_>>()?;
+    progress.finish();
+    let signatures_seconds = clock.elapsed().as_secs_f64();
+
+    let clock = Instant::now();
+    let chosen = half.models(collection);
+    progress.start("parts", chosen.len());
+    let cuts: Vec<Option<Cut>> = chosen
+        .par_iter()
+        .map(|&i| {
+            let raw = load_path(&collection.models[i].path, limits)?;
+            progress.advance(&collection.models[i].id);
+            Ok(cut_part(i, &raw))
+        })
+        .collect::<Result<_>>()?;
+    progress.finish();
+    let uncut = chosen
+        .iter()
+        .zip(&cuts)
+        .filter(|(_, c)| c.is_none())
+        .map(|(&i, _)| collection.models[i].id.clone())
+        .collect();
+    let cuts: Vec<Cut> = cuts.into_iter().flatten().collect();
+    let scales = &params.similarity.partial.scales;
+    progress.start("describe", cuts.len());
+    let described = cuts
+        .iter()
+        .map(|c| {
+            let part = Part::extract(&c.raw, params, scales, &params.similarity)?;
+            let whole = compute(&c.raw, params)?;
+            let mesh = crate::mesh::prepare(&c.raw, &params.mesh)?;
+            let corners: Vec<[DVec3; 3]> = mesh
+                .triangles
+                .iter()
+                .map(|t| t.map(|v| mesh.positions[v as usize]))
+                .collect();
+            let described = piece(&corners, &mut ChaCha8Rng::seed_from_u64(7));
+            progress.advance(&collection.models[c.source].id);
+            Ok((part, whole, described))
+        })
+        .collect::<Result<Vec<_>>>()?;
+    progress.finish();
+    let describe_seconds = clock.elapsed().as_secs_f64();
+
+    let clock = Instant::now();
+    let io = |e| crate::Error::Io {
+        path: std::env::temp_dir(),
+        source: e,
+    };
+    let mut parts = Vec::with_capacity(cuts.len());
+    for (c, (part, whole, described)) in cuts.iter().zip(&described) {
+        let model = &collection.models[c.source];
+        let partial = index
+            .search_partial(part, DEPTH, &Scope::default())
+            .map_err(io)?;
+        let whole = index.search(whole, DEPTH, Method::default()).map_err(io)?;
+        let mut by_patch: Vec<Hit> = collection
+            .models
+            .iter()
+            .zip(&patches)
+            .map(|(m, p)| Hit {
+                id: m.id.clone(),
+                distance: described.map_or(f64::INFINITY, |d| p.nearest(&d)),
+            })
+            .collect();
+        by_patch.sort_by(|a, b| a.distance.total_cmp(&b.distance).then(a.id.cmp(&b.id)));
+        by_patch.truncate(DEPTH);
+        let found = Found::of(&partial.ranking.hits, &model.id);
+        parts.push(PartResult {
+            source: model.id.clone(),
+            class: model.class.clone(),
+            ball: c.ball,
+            area_share: c.area_share,
+            size: c.size,
+            vertices: c.raw.positions.len(),
+            features: part.sizes().collect(),
+            fitted_scale: found.rank.map(|r| partial.scales[r - 1]),
+            partial: found,
+            whole: Found::of(&whole.hits, &model.id),
+            patches: Found::of(&by_patch, &model.id),
+        });
+    }
+    let search_seconds = clock.elapsed().as_secs_f64();
+
+    let class_of: BTreeMap<&str, &str> = collection
+        .models
+        .iter()
+        .map(|m| (m.id.as_str(), m.class.as_str()))
+        .collect();
+    let rates = |mode: &str, of: &[&PartResult], found: fn(&PartResult) -> &Found| {
+        let share = |hits: usize| hits as f64 / of.len().max(1) as f64;
+        let ranks = || of.iter().map(|p| found(p).rank);
+        ModeResult {
+            mode: mode.to_string(),
+            parts: of.len(),
+            source_first: share(ranks().filter(|&r| r == Some(1)).count()),
+            source_top5: share(ranks().filter(|r| r.is_some_and(|r| r <= 5)).count()),
+            class_first: share(
+                of.iter()
+                    .filter(|p| class_of.get(found(p).first.as_str()) == Some(&p.class.as_str()))
+                    .count(),
+            ),
+        }
+    };
+    let all: Vec<&PartResult> = parts.iter().collect();
+    let modes = vec![
+        rates("partial", &all, |p| &p.partial),
+        rates("whole", &all, |p| &p.whole),
+        rates("patches", &all, |p| &p.patches),
+    ];
+    let mut by_class = BTreeMap::<&str, Vec<&PartResult>>::new();
+    for p in &parts {
+        by_class.entry(p.class.as_str()).or_default().push(p);
+    }
+    let per_class = by_class
+        .into_iter()
+        .map(|(class, of)| (class.to_string(), rates("partial", &of, |p| &p.partial)))
+        .collect();
+    Ok(PartialReport {
+        collection: collection.root.display().to_string(),
+        half: format!("{half:?}"),
+        models: collection.models.len(),
+        params: params.similarity.partial.clone(),
+        modes,
+        per_class,
+        parts,
+        uncut,
+        seconds: Seconds {
+            signatures: signatures_seconds,
+            describe_parts: describe_seconds,
+            search: search_seconds,
+        },
+    })
+}
+
+/// The part of model `source`: a ball of [`BALL`] × the model's radius around a random point
+/// of its surface, tried [`ATTEMPTS`] times for a part within [`AREA_SHARE`].
+fn cut_part(source: usize, raw: &RawMesh) -> Option<Cut> {
+    let mut rng = ChaCha8Rng::seed_from_u64(0x9a27 ^ source as u64);
+    let (radius, area) = extent(raw);
+    let triangles: Vec<[DVec3; 3]> = raw
+        .triangles
+        .iter()
+        .map(|t| t.map(|v| raw.positions[v as usize]))
+        .collect();
+    for _ in 0..ATTEMPTS {
+        let point = sample_surface(&triangles, 1, &mut rng)?[0];
+        let ball = rng.gen_range(BALL);
+        let Some(part) = cut(raw, point, ball * radius) else {
+            continue;
+        };
+        let (part_radius, part_area) = extent(&part);
+        let area_share = part_area / area;
+        if AREA_SHARE.contains(&area_share) {
+            return Some(Cut {
+                source,
+                ball,
+                area_share,
+                size: part_radius / radius,
+                raw: part,
+            });
+        }
+    }
+    None
+}
+
+/// The radius SPEC §1.4 normalises by, and the area.
+fn extent(raw: &RawMesh) -> (f64, f64) {
+    let (_, scale) = normalisation(&raw.positions, &raw.triangles);
+    let area = raw
+        .triangles
+        .iter()
+        .map(|t| triangle_area(&t.map(|v| raw.positions[v as usize])))
+        .sum();
+    (1.0 / scale, area)
+}
+
+impl PartialReport {
+    pub fn markdown(&self) -> String {
+        let mut modes = Table::new([
+            "mode",
+            "parts",
+            "source first",
+            "source in top 5",
+            "class first",
+        ]);
+        for m in &self.modes {
+            modes.row([
+                m.mode.clone(),
+                m.parts.to_string(),
+                score(m.source_first),
+                score(m.source_top5),
+                score(m.class_first),
+            ]);
+        }
+        let mut classes = Table::new([
+            "class",
+            "parts",
+            "source first",
+            "source in top 5",
+            "class first",
+        ]);
+        for (class, m) in &self.per_class {
+            classes.row([
+                class.clone(),
+                m.parts.to_string(),
+                score(m.source_first),
+                score(m.source_top5),
+                score(m.class_first),
+            ]);
+        }
+        let sizes: Vec<f64> = self.parts.iter().map(|p| p.size).collect();
+        let median = |mut v: Vec<f64>| {
+            v.sort_by(f64::total_cmp);
+            v.get(v.len() / 2).copied().unwrap_or(f64::NAN)
+        };
+        format!(
+            "# Partial retrieval: {} ({} half)\n\n\
+             One part per model of the half (the surface inside a ball of 30–50 % of the model's \
+             radius around a random surface point, its largest piece), queried against all {} \
+             models as a part (`partial`: `mode=partial`, sizes {:?}), as a whole model \
+             (`whole`: the default method), and by patch descriptors (`patches`: each model \
+             described by pieces cut around {} surface points at {:?} of its radius, the \
+             part as one piece; measured here, not served yet). Median part size {:.2} of its model's radius, median share of its area \
+             {:.2}; {} models gave no part.\n\n{}\n\n## Partial mode per class\n\n{}\n\n\
+             Seconds: signatures {:.1}, describing the parts {:.1}, searching {:.1}.\n",
+            self.collection,
+            self.half,
+            self.models,
+            self.params.scales,
+            CENTRES,
+            RADII,
+            median(sizes),
+            median(self.parts.iter().map(|p| p.area_share).collect()),
+            self.uncut.len(),
+            modes.markdown(),
+            classes.markdown(),
+            self.seconds.signatures,
+            self.seconds.describe_parts,
+            self.seconds.search,
+        )
+    }
+
+    pub fn write(&self, dir: &Path) -> Result<()> {
+        write_json(&dir.join("partial.json"), self)?;
+        write(&dir.join("partial.md"), self.markdown())
+    }
+}

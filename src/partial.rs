@@ -1,0 +1,176 @@
+//! Partial retrieval (issue #14, the paper's stated reason for local features): the query is
+//! a piece of a model — cut from it, an open surface with a boundary — and a stored model
+//! ranks by how well the piece's salient features fit among its own.
+//!
+//! Two things differ from a whole-model search:
+//! - **Size.** SPEC §1.4 scales every mesh to the unit sphere, which magnifies a part two or
+//!   three times against its source, and `D_g`-sized features no longer correspond. A part's
+//!   size in its model is unknown (a query's units say nothing about a stored model's), so
+//!   the part is described at each of a few sizes ([`PartialParams::scales`], or the one the
+//!   caller knows) by [`Params::at_scale`], and each model ranks by the size that fits it
+//!   best.
+//! - **Transport.** All of the part's features must find a place in the model, but the rest
+//!   of the model is free ([`part_in`]); no count penalty.
+//!
+//! The cut boundary needs no rule of its own: a wave that reaches a boundary is invalid
+//! (SPEC §2.3), so a vertex near the cut has a shrunk region or none, and no region spans it.
+
+use glam::DVec3;
+
+use crate::mesh::refine::refine;
+use crate::mesh::RawMesh;
+use crate::params::{Params, PartialParams, SimilarityParams};
+use crate::pipeline::compute_features;
+use crate::similarity::{part_bound, part_in, CostMatrix, Features, Summary};
+use crate::{Error, Result};
+
+/// Triangles across a cut's sphere are split until their longest edge is at most this share
+/// of its radius.
+const CUT_EDGE: f64 = 1.0 / 16.0;
+
+/// A part described at each size it is searched at.
+#[derive(Debug, Clone)]
+pub struct Part {
+    views: Vec<View>,
+}
+
+/// The part at one size.
+#[derive(Debug, Clone)]
+struct View {
+    scale: f64,
+    features: Features,
+    summary: Summary,
+}
+
+/// How a part compares with one model: the distance and the size it was found at.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Fit {
+    pub distance: f64,
+    pub scale: f64,
+}
+
+impl Part {
+    /// Describes `raw` at each of `scales` (each in [`PartialParams::RANGE`]) with the
+    /// extraction parameters of `params`; `similarity` must be the one the ranking uses (its
+    /// `W` shapes the bounds' summaries). Sizes at which the part has no salient feature are
+    /// left out; a part with none at any size is an error.
+    pub fn extract(
+        raw: &RawMesh,
+        params: &Params,
+        scales: &[f64],
+        similarity: &SimilarityParams,
+    ) -> Result<Self> {
+        if scales.is_empty()
+            || scales.len() > PartialParams::MAX_SCALES
+            || !scales.iter().all(|r| PartialParams::RANGE.contains(r))
+        {
+            return Err(Error::InvalidParameter {
+                name: "part scale",
+                message: "1 to 8 sizes, each in [0.2, 1]",
+            });
+        }
+        let mut views = Vec::with_capacity(scales.len());
+        for &scale in scales {
+            let signature = compute_features(raw, &params.at_scale(scale))?;
+            let features = Features::of(&signature.features);
+            if !features.is_empty() {
+                views.push(View {
+                    scale,
+                    summary: Summary::of(&features, similarity),
+                    features,
+                });
+            }
+        }
+        if views.is_empty() {
+            return Err(Error::NoFeatures);
+        }
+        Ok(Self { views })
+    }
+
+    /// The sizes the part was described at, with its salient feature count at each.
+    pub fn sizes(&self) -> impl Iterator<Item = (f64, usize)> + '_ {
+        self.views.iter().map(|v| (v.scale, v.features.len()))
+    }
+
+    /// A lower bound on [`Part::fit`]'s distance from a model's summary ([`part_bound`] at
+    /// the best size).
+    pub fn bound(&self, model: &Summary) -> f64 {
+        self.views
+            .iter()
+            .map(|v| part_bound(&v.summary, model))
+            .fold(f64::INFINITY, f64::min)
+    }
+
+    /// The best fit of the part into `model` over its sizes, or `None` when none is within
+    /// `limit` (sizes whose nearest-feature bound exceeds it are not solved).
+    pub fn fit(&self, model: &Features, similarity: &SimilarityParams, limit: f64) -> Option<Fit> {
+        self.views
+            .iter()
+            .filter_map(|v| {
+                let costs = CostMatrix::new(&v.features, model, similarity);
+                (costs.nearest_bound() <= limit).then(|| Fit {
+                    distance: part_in(&costs),
+                    scale: v.scale,
+                })
+            })
+            .filter(|f| f.distance <= limit)
+            .min_by(|a, b| a.distance.total_cmp(&b.distance))
+    }
+}
+
+/// The piece of `raw` inside the ball of `radius` around `centre`, and of that its largest
+/// connected component by area: a part as `salient eval partial` and the patch descriptors
+/// ([`crate::descriptor::patch`]) cut it. Triangles across the sphere are split until they
+/// are small against the ball ([`refine`]), then those whose centroid is inside are kept, so
+/// the cut follows the sphere on a low-poly model too while the inside keeps its triangles.
+/// `None` when nothing is inside.
+pub fn cut(raw: &RawMesh, centre: DVec3, radius: f64) -> Option<RawMesh> {
+    let across = |corners: &[DVec3; 3], longest: f64| {
+        let distances = corners.map(|p| p.distance(centre));
+        longest > radius * CUT_EDGE
+            && distances.iter().any(|&d| d < radius)
+            && distances.iter().any(|&d| d > radius)
+    };
+    let refined = refine(raw, across);
+    let raw = &refined;
+    let corners = |t: &[u32; 3]| t.map(|v| raw.positions[v as usize]);
+    let inside: Vec<[u32; 3]> = raw
+        .triangles
+        .iter()
+        .filter(|t| {
+            let [a, b, c] = corners(t);
+            ((a + b + c) / 3.0).distance(centre) <= radius
+        })
+        .copied()
+        .collect();
+    // Components by shared vertices: union–find over the triangles' corners.
+    let mut parent: Vec<u32> = (0..raw.positions.len() as u32).collect();
+    fn root(parent: &mut [u32], mut x: u32) -> u32 {
+        while parent[x as usize] != x {
+            parent[x as usize] = parent[parent[x as usize] as usize];
+            x = parent[x as usize];
+        }
+        x
+    }
+    for t in &inside {
+        for k in 1..3 {
+            let (a, b) = (root(&mut parent, t[0]), root(&mut parent, t[k]));
+            parent[a.max(b) as usize] = a.min(b);
+        }
+    }
+    let mut area = std::collections::BTreeMap::<u32, f64>::new();
+    for t in &inside {
+        let [a, b, c] = corners(t);
+        *area.entry(root(&mut parent, t[0])).or_default() += (b - a).cross(c - a).length();
+    }
+    let (&largest, _) = area.iter().max_by(|a, b| a.1.total_cmp(b.1))?;
+    let kept: Vec<[u32; 3]> = inside
+        .into_iter()
+        .filter(|t| root(&mut parent, t[0]) == largest)
+        .collect();
+    let (positions, triangles) = crate::mesh::weld::compact(&raw.positions, &kept);
+    Some(RawMesh {
+        positions,
+        triangles,
+    })
+}

@@ -1,0 +1,250 @@
+//! Partial retrieval (issue #14), with known answers: a piece cut from a generated model
+//! finds that model among others, the pruned ranking equals a full scan, and over HTTP
+//! `mode=partial` answers with the sizes it tried and rejects what does not apply.
+
+use axum::http::StatusCode;
+use glam::DVec3;
+use salient::descriptor::patch::{piece, piece_distance, Patches};
+use salient::mesh::RawMesh;
+use salient::params::Params;
+use salient::partial::{cut, Part};
+use salient::pipeline::compute;
+use salient::rank::{Index, Scope};
+use salient::similarity::{part_in, CostMatrix, Features};
+use serde_json::Value;
+
+use crate::app::TestApp;
+use crate::server::obj;
+use crate::shapes;
+
+/// The collection: a star with five spikes, and shapes without them.
+fn collection() -> Vec<(&'static str, RawMesh)> {
+    vec![
+        ("star", shapes::star(4, &shapes::five_tips())),
+        ("sphere", shapes::icosphere(4)),
+        ("tube", shapes::tube(0.3, 30, 24)),
+        ("bowl", shapes::bowl(4)),
+    ]
+}
+
+/// The star's +x spike and the body around its root: the surface within 0.6 of the spike's
+/// middle (the star's radius is 1.3).
+fn spike() -> RawMesh {
+    let star = &collection()[0].1;
+    cut(star, DVec3::new(0.9, 0.0, 0.0), 0.6).expect("the ball holds part of the star")
+}
+
+#[test]
+fn a_cut_is_the_largest_piece_inside_the_ball() {
+    let star = &collection()[0].1;
+    let part = spike();
+    assert!(part.triangles.len() < star.triangles.len() / 4);
+    assert!(
+        part.positions.iter().all(|p| p.x > 0.2),
+        "only the +x spike"
+    );
+    // Two unit spheres 2.5 apart, a ball between them nearer the first: of the two pieces
+    // inside it, the first's is the larger and the only one kept.
+    let mut pair = shapes::icosphere(3);
+    let second = shapes::transformed(
+        &pair,
+        glam::DMat4::from_translation(DVec3::new(2.5, 0.0, 0.0)),
+    );
+    let offset = pair.positions.len() as u32;
+    pair.positions.extend(second.positions);
+    pair.triangles
+        .extend(second.triangles.iter().map(|t| t.map(|v| v + offset)));
+    let piece = cut(&pair, DVec3::new(1.1, 0.0, 0.0), 0.6).unwrap();
+    assert!(!piece.triangles.is_empty());
+    assert!(
+        piece.positions.iter().all(|p| p.x < 1.25),
+        "the first sphere's piece"
+    );
+    assert!(cut(star, DVec3::splat(10.0), 0.5).is_none());
+
+    // On a coarse sphere (edges ~0.6) the cut still follows a ball of 0.5: triangles across
+    // the sphere are split to a sixteenth of its radius before the centroids are tested.
+    let coarse = shapes::icosphere(1);
+    let centre = coarse.positions[0];
+    let piece = cut(&coarse, centre, 0.5).unwrap();
+    let farthest = piece
+        .positions
+        .iter()
+        .map(|p| p.distance(centre))
+        .fold(0.0, f64::max);
+    assert!(farthest <= 0.5 * (1.0 + 1.0 / 16.0) + 1e-9, "{farthest}");
+    assert!(farthest > 0.45, "{farthest}");
+}
+
+#[test]
+fn a_piece_is_described_alike_however_it_is_moved_and_a_model_holds_its_own_pieces() {
+    use rand::SeedableRng;
+    use rand_chacha::ChaCha8Rng;
+    let corners = |mesh: &RawMesh| -> Vec<[DVec3; 3]> {
+        mesh.triangles
+            .iter()
+            .map(|t| t.map(|v| mesh.positions[v as usize]))
+            .collect()
+    };
+    let part = spike();
+    let moved = shapes::transformed(&part, shapes::random_motion(3));
+    let described =
+        |mesh: &RawMesh| piece(&corners(mesh), &mut ChaCha8Rng::seed_from_u64(1)).unwrap();
+    let (a, b) = (described(&part), described(&moved));
+    assert!(piece_distance(&a, &b) < 1e-3, "{}", piece_distance(&a, &b));
+
+    // The spike is among the star's patches, not among the sphere's or the tube's.
+    let params = Params::default();
+    let patches = |mesh: &RawMesh| {
+        let prepared = salient::mesh::prepare(mesh, &params.mesh).unwrap();
+        Patches::compute(&prepared.positions, &prepared.triangles, 5)
+    };
+    let models = collection();
+    let star = patches(&models[0].1).nearest(&a);
+    for (id, mesh) in &models[1..] {
+        let other = patches(mesh).nearest(&a);
+        assert!(star < other, "{id}: {other} vs the star's {star}");
+    }
+}
+
+#[test]
+fn a_part_fits_where_its_features_are_and_the_whole_model_emd_does_not() {
+    let params = Params::default();
+    let star = compute(&collection()[0].1, &params).unwrap();
+    let whole = Features::of(&star.features);
+    let one = Features::of(&star.features[..1]);
+    let similarity = &params.similarity;
+    // One of the model's own features fits at no cost; the rest of the model is free.
+    assert!(star.features.len() > 1);
+    assert_eq!(part_in(&CostMatrix::new(&one, &whole, similarity)), 0.0);
+    // The whole-model EMD moves the part's mass over every feature.
+    let emd = salient::similarity::compare(
+        &salient::signature::Signature {
+            features: star.features[..1].to_vec(),
+            ..star.clone()
+        },
+        &star,
+        similarity,
+    );
+    assert!(emd.emd > 0.0);
+    // More part features than the model has: all the part's mass still moves.
+    let reversed = CostMatrix::new(&whole, &one, similarity);
+    assert!(part_in(&reversed) > 0.0);
+    assert!(reversed.nearest_bound() <= part_in(&reversed));
+}
+
+#[test]
+fn a_piece_cut_from_a_model_finds_it_and_the_pruned_ranking_equals_a_full_scan() {
+    let params = Params::default();
+    let mut index = Index::new(params.similarity.clone());
+    let mut stored = Vec::new();
+    for (id, mesh) in collection() {
+        let signature = compute(&mesh, &params).unwrap();
+        index.insert(id, &signature).unwrap();
+        stored.push((id, Features::of(&signature.features)));
+    }
+    let scales = &params.similarity.partial.scales;
+    let part = Part::extract(&spike(), &params, scales, &params.similarity).unwrap();
+    assert_eq!(part.sizes().count(), scales.len());
+
+    let ranked = index.search_partial(&part, 4, &Scope::default()).unwrap();
+    let ids: Vec<&str> = ranked.ranking.hits.iter().map(|h| h.id.as_str()).collect();
+    assert_eq!(ids[0], "star", "{ranked:?}");
+
+    // Every model's exact fit, sorted: the pruned ranking's order and distances.
+    let mut full: Vec<(f64, &str)> = stored
+        .iter()
+        .map(|(id, features)| {
+            let fit = part
+                .fit(features, &params.similarity, f64::INFINITY)
+                .unwrap();
+            assert!(
+                part.bound(&salient::similarity::Summary::of(
+                    features,
+                    &params.similarity
+                )) <= fit.distance
+            );
+            (fit.distance, *id)
+        })
+        .collect();
+    full.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(b.1)));
+    let expected: Vec<(f64, &str)> = full.into_iter().take(4).collect();
+    let got: Vec<(f64, &str)> = ranked
+        .ranking
+        .hits
+        .iter()
+        .map(|h| (h.distance, h.id.as_str()))
+        .collect();
+    assert_eq!(got, expected);
+    assert_eq!(ranked.scales.len(), 4);
+    assert!(ranked.scales.iter().all(|s| scales.contains(s)));
+
+    // The top hit alone, with a smaller k, is pruned to it.
+    let top = index.search_partial(&part, 1, &Scope::default()).unwrap();
+    assert_eq!(top.ranking.hits[0].id, "star");
+}
+
+#[test]
+fn part_sizes_out_of_range_are_refused() {
+    let params = Params::default();
+    for scales in [vec![], vec![0.1], vec![1.5], vec![0.5; 9]] {
+        let result = Part::extract(&spike(), &params, &scales, &params.similarity);
+        assert!(
+            matches!(result, Err(salient::Error::InvalidParameter { .. })),
+            "{scales:?}"
+        );
+    }
+}
+
+async fn json(response: crate::app::TestResponse) -> Value {
+    response.json()
+}
+
+#[tokio::test]
+async fn a_part_is_searched_over_http() {
+    let app = TestApp::new();
+    for (id, mesh) in collection() {
+        let response = app.add(&format!("id={id}"), "model/obj", obj(&mesh)).await;
+        assert_eq!(response.status(), StatusCode::CREATED, "{id}");
+    }
+    let search = |query: &str| {
+        app.post(format!("/v1/search?{query}"))
+            .header("content-type", "model/obj")
+            .body(obj(&spike()))
+            .send()
+    };
+    let response = search("mode=partial&k=2").await;
+    assert_eq!(response.status(), StatusCode::OK);
+    let body = json(response).await;
+    assert_eq!(body["mode"], "partial");
+    assert_eq!(body["method"], "ecc");
+    assert_eq!(body["results"][0]["id"], "star", "{body}");
+    assert_eq!(body["results"].as_array().unwrap().len(), 2);
+    assert!(body["results"][0]["part_scale"].is_f64());
+    assert_eq!(body["part_sizes"].as_array().unwrap().len(), 4);
+
+    // A known size is the only one tried.
+    let body = json(search("mode=partial&part_scale=0.5").await).await;
+    assert_eq!(body["part_sizes"][0]["scale"], 0.5);
+    assert_eq!(body["part_sizes"].as_array().unwrap().len(), 1);
+    assert_eq!(body["results"][0]["part_scale"], 0.5);
+
+    // Whole-model search is unchanged, and says so.
+    let body = json(search("k=1").await).await;
+    assert_eq!(body["mode"], "whole");
+    assert!(body.get("part_sizes").is_none());
+
+    for bad in [
+        "mode=partial&method=ecc",
+        "mode=partial&explain=true",
+        "mode=partial&part_scale=0.1",
+        "part_scale=0.5",
+        "mode=parts",
+    ] {
+        let response = search(bad).await;
+        assert_eq!(response.status(), StatusCode::BAD_REQUEST, "{bad}");
+        assert!(json(response).await["error"]["code"].is_string(), "{bad}");
+    }
+    let response = app.get("/v1/models/star/similar?mode=partial").send().await;
+    assert_eq!(response.status(), StatusCode::BAD_REQUEST);
+}
