@@ -34,8 +34,8 @@ enum Command {
     /// near-duplicate search groups them: precision and recall of duplicate pairs per
     /// evidence level.
     Duplicates(DuplicatesArgs),
-    /// Cut a part from every model of a half (a ball of 30–50 % of its radius around a random
-    /// surface point) and query it against the whole collection as a part and as a whole
+    /// Cut three parts from every model of a half (each a ball of 30–50 % of its radius around
+    /// a random surface point) and query it against the whole collection as a part and as a whole
     /// model: how often its source ranks first and within the top 5, and its class first.
     Partial(PartialArgs),
     /// Choose the hybrid's weights, scales and penalty power on the tuning halves of the

@@ -1,5 +1,5 @@
 //! `salient eval partial`: how well a piece of a model finds its source (issue #14). Every
-//! model of a half gets one part — the surface inside a ball of 30–50 % of its radius around a
+//! model of a half gets three parts — each the surface inside a ball of 30–50 % of its radius around a
 //! random surface point, its largest connected piece ([`cut`]) — queried against the whole
 //! collection: as a part ([`Index::search_partial`]), as a whole model (the default method, as
 //! `/v1/search` without `mode`), and by patch descriptors ([`crate::descriptor::patch`]:
@@ -38,7 +38,10 @@ const DEPTH: usize = 10;
 /// The ball around the cut point, as a fraction of the model's radius (SPEC §1.4's).
 const BALL: std::ops::Range<f64> = 0.3..0.5;
 
-/// Random cut points tried per model before giving up on a part.
+/// Parts cut from each model: one would leave the rates at the mercy of a few cuts.
+const PARTS: usize = 3;
+
+/// Random cut points tried per part before giving up on it.
 const ATTEMPTS: usize = 8;
 
 /// A part keeps at least this share of its model's area, and at most this share: a sliver
@@ -166,26 +169,26 @@ pub fn run(
     let clock = Instant::now();
     let chosen = half.models(collection);
     progress.start("parts", chosen.len());
-    let cuts: Vec<Option<Cut>> = chosen
+    let cuts: Vec<Vec<Cut>> = chosen
         .par_iter()
         .map(|&i| {
             let raw = load_path(&collection.models[i].path, limits)?;
             progress.advance(&collection.models[i].id);
-            Ok(cut_part(i, &raw))
+            Ok(cut_parts(i, &raw))
         })
         .collect::<Result<_>>()?;
     progress.finish();
     let uncut = chosen
         .iter()
         .zip(&cuts)
-        .filter(|(_, c)| c.is_none())
+        .filter(|(_, c)| c.is_empty())
         .map(|(&i, _)| collection.models[i].id.clone())
         .collect();
     let cuts: Vec<Cut> = cuts.into_iter().flatten().collect();
     let scales = &params.similarity.partial.scales;
     progress.start("describe", cuts.len());
     let described = cuts
-        .iter()
+        .par_iter()
         .map(|c| {
             let part = Part::extract(&c.raw, params, scales, &params.similarity)?;
             let whole = compute(&c.raw, params)?;
@@ -294,9 +297,9 @@ pub fn run(
     })
 }
 
-/// The part of model `source`: a ball of [`BALL`] × the model's radius around a random point
-/// of its surface, tried [`ATTEMPTS`] times for a part within [`AREA_SHARE`].
-fn cut_part(source: usize, raw: &RawMesh) -> Option<Cut> {
+/// The parts of model `source`: [`PARTS`] balls of [`BALL`] × the model's radius around
+/// random points of its surface, [`ATTEMPTS`] tries each for a part within [`AREA_SHARE`].
+fn cut_parts(source: usize, raw: &RawMesh) -> Vec<Cut> {
     let mut rng = ChaCha8Rng::seed_from_u64(0x9a27 ^ source as u64);
     let (radius, area) = extent(raw);
     let triangles: Vec<[DVec3; 3]> = raw
@@ -304,8 +307,15 @@ fn cut_part(source: usize, raw: &RawMesh) -> Option<Cut> {
         .iter()
         .map(|t| t.map(|v| raw.positions[v as usize]))
         .collect();
-    for _ in 0..ATTEMPTS {
-        let point = sample_surface(&triangles, 1, &mut rng)?[0];
+    let mut parts = Vec::with_capacity(PARTS);
+    for _ in 0..ATTEMPTS * PARTS {
+        if parts.len() == PARTS {
+            break;
+        }
+        let Some(point) = sample_surface(&triangles, 1, &mut rng) else {
+            break;
+        };
+        let point = point[0];
         let ball = rng.gen_range(BALL);
         let Some(part) = cut(raw, point, ball * radius) else {
             continue;
@@ -313,7 +323,7 @@ fn cut_part(source: usize, raw: &RawMesh) -> Option<Cut> {
         let (part_radius, part_area) = extent(&part);
         let area_share = part_area / area;
         if AREA_SHARE.contains(&area_share) {
-            return Some(Cut {
+            parts.push(Cut {
                 source,
                 ball,
                 area_share,
@@ -322,7 +332,7 @@ fn cut_part(source: usize, raw: &RawMesh) -> Option<Cut> {
             });
         }
     }
-    None
+    parts
 }
 
 /// The radius SPEC §1.4 normalises by, and the area.
@@ -377,7 +387,7 @@ impl PartialReport {
         };
         format!(
             "# Partial retrieval: {} ({} half)\n\n\
-             One part per model of the half (the surface inside a ball of 30–50 % of the model's \
+             Three parts per model of the half (each the surface inside a ball of 30–50 % of the model's \
              radius around a random surface point, its largest piece), queried against all {} \
              models as a part (`partial`: `mode=partial`, sizes {:?}), as a whole model \
              (`whole`: the default method), and by patch descriptors (`patches`: each model \
