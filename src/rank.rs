@@ -728,6 +728,7 @@ impl Index {
             |_, _| Some(0.0),
             |e, kth| Ok(part.fit(e.features(), params, kth).map(|f| f.distance)),
         )?;
+        // The cascade ranks by distance alone: the k hits' sizes are found again.
         let scales = ranking
             .hits
             .iter()

@@ -146,12 +146,7 @@ impl CostMatrix {
         if m == 0 || n == 0 {
             return f64::INFINITY;
         }
-        let rows: f64 = self
-            .cost
-            .chunks_exact(n)
-            .map(|row| row.iter().copied().fold(f64::INFINITY, f64::min))
-            .sum::<f64>()
-            / m as f64;
+        let rows = self.nearest_bound();
         let columns: f64 = (0..n)
             .map(|j| {
                 (0..m)
@@ -162,11 +157,10 @@ impl CostMatrix {
             / n as f64;
         penalty(m, n, params) * rows.max(columns)
     }
-}
 
-impl CostMatrix {
     /// Each of `P`'s features at its nearest of `Q`, mean over `P`: the cost of moving `P`'s
-    /// mass with `Q`'s capacities ignored, so a lower bound on [`part_in`].
+    /// mass with `Q`'s capacities ignored, so a lower bound on [`part_in`] (and one half of
+    /// [`CostMatrix::relaxed_bound`]).
     pub fn nearest_bound(&self) -> f64 {
         if self.m == 0 || self.n == 0 {
             return f64::INFINITY;
