@@ -80,9 +80,6 @@ pub enum Extent {
     /// all that a query ranked by `d2`, `lfd` or `geodesic` compares, at a fraction of the
     /// cost.
     Global,
-    /// The salient features without the global descriptors: all that a part compares
-    /// ([`crate::partial`]).
-    Features,
 }
 
 /// The signature of a mesh file (with its glTF resources), in its stored form: what a query
@@ -98,7 +95,6 @@ pub fn signature_of_file(
     let signature = match extent {
         Extent::Full => compute(&raw, params)?,
         Extent::Global => compute_global(&raw, params)?,
-        Extent::Features => compute_features(&raw, params)?,
     };
     Signature::from_bytes(&signature.to_bytes())
 }
@@ -165,7 +161,8 @@ pub fn describe(extraction: &Extraction, params: &Params) -> Signature {
     with_features(global, extraction, params)
 }
 
-/// The salient features of a loaded mesh ([`Extent::Features`]): no global descriptors.
+/// The salient features of a loaded mesh, no global descriptors: all that a part compares
+/// ([`crate::partial`]).
 pub fn compute_features(raw: &RawMesh, params: &Params) -> Result<Signature> {
     let extraction = extract(raw, params)?;
     let bare = bare(&extraction.mesh, params, extraction.stats.clone());
