@@ -561,6 +561,11 @@ impl PartialParams {
     pub const RANGE: std::ops::RangeInclusive<f64> = 0.2..=1.0;
     /// At most this many sizes: each is an extraction of the part.
     pub const MAX_SCALES: usize = 8;
+
+    /// The sizes to describe a part at: the one the caller knows, else [`Self::scales`].
+    pub fn sizes(&self, known: Option<f64>) -> Vec<f64> {
+        known.map_or_else(|| self.scales.clone(), |r| vec![r])
+    }
 }
 
 impl Default for PartialParams {

@@ -157,6 +157,7 @@ pub struct SearchResponse {
     /// The method ranked by; `ecc` under `mode=partial` (salient features only).
     #[schema(value_type = String)]
     pub method: Method,
+    /// What the upload was searched as: `whole`, or `partial` (a piece of a model).
     pub mode: SearchMode,
     pub k: usize,
     pub results: Vec<SearchHit>,
@@ -268,10 +269,7 @@ async fn search_part(
         ));
     }
     let k = requested_k(app, &q)?;
-    let scales = match q.part_scale {
-        Some(r) => vec![r],
-        None => app.config.params.similarity.partial.scales.clone(),
-    };
+    let scales = app.config.params.similarity.partial.sizes(q.part_scale);
     let params = app.config.params.clone();
     let limits = app.config.limits;
     let part = app

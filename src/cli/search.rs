@@ -100,10 +100,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let files = find_meshes(&args.collection)?;
     let method = args.method.unwrap_or_default();
     let query = if args.partial {
-        let scales = match args.part_scale {
-            Some(r) => vec![r],
-            None => params.similarity.partial.scales.clone(),
-        };
+        let scales = params.similarity.partial.sizes(args.part_scale);
         let raw =
             load_path(&args.query, &limits).with_context(|| args.query.display().to_string())?;
         Query::Part(
