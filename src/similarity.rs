@@ -5,7 +5,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use crate::descriptor::histogram_l1;
+use crate::descriptor::{histogram_l1, lane_sum};
 use crate::emd::{emd_flows, emd_matrix};
 use crate::params::SimilarityParams;
 use crate::signature::{quantise, Feature, Signature, BIN_SCALE};
@@ -328,18 +328,9 @@ pub fn centroid_bound(
     params: &SimilarityParams,
 ) -> f64 {
     let w = params.ecc_weight;
-    let ecc =
-        p.0.iter()
-            .zip(q.0)
-            .map(|(&a, &b)| (a - b) * (a - b))
-            .sum::<f32>() as f64;
+    let ecc = lane_sum(p.0, q.0, |a, b| (a - b) * (a - b));
     let ecc = (ecc / p.0.len().max(1) as f64).sqrt();
-    let d2 =
-        p.1.iter()
-            .zip(q.1)
-            .map(|(&a, &b)| (a - b).abs())
-            .sum::<f32>() as f64
-            / 2.0;
+    let d2 = lane_sum(p.1, q.1, |a, b| (a - b).abs()) / 2.0;
     let centroid = w * ecc + (1.0 - w) * d2 - CENTROID_SLACK;
     penalty(p.2, q.2, params) * centroid.max(0.0)
 }

@@ -122,13 +122,7 @@ impl Cumulative {
     /// The mean of the two histograms' EMDs ([`GeodesicDescriptor::distance`]). Eight
     /// partial sums in a fixed order: the same value everywhere, and it vectorises.
     pub fn distance(&self, other: &Self) -> f64 {
-        let mut lanes = [0.0f32; 8];
-        for (a, b) in self.0.chunks_exact(8).zip(other.0.chunks_exact(8)) {
-            for ((lane, &x), &y) in lanes.iter_mut().zip(a).zip(b) {
-                *lane += (x - y).abs();
-            }
-        }
-        lanes.iter().map(|&s| s as f64).sum::<f64>() / (2 * BINS) as f64
+        super::lane_sum(&self.0, &other.0, |x, y| (x - y).abs()) / (2 * BINS) as f64
     }
 }
 
