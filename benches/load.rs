@@ -415,6 +415,16 @@ fn main() {
         .build()
         .expect("a client");
     let sources = sources();
+    // `SALIENT_LOAD_METHODS=hybrid,d2` narrows the runs (every method by default).
+    let measured: Vec<Method> = std::env::var("SALIENT_LOAD_METHODS").map_or_else(
+        |_| Method::ALL.to_vec(),
+        |names| {
+            names
+                .split(',')
+                .map(|m| m.trim().parse().expect("SALIENT_LOAD_METHODS: methods"))
+                .collect()
+        },
+    );
 
     let (ingest_rate, healthz_ms) = ingest_figure(sources.ingest.path(), &runtime);
     println!(
@@ -455,7 +465,7 @@ fn main() {
         );
         let mut methods = BTreeMap::new();
         let mut during_rates = Vec::new();
-        for method in Method::ALL {
+        for &method in &measured {
             let run = similar(&runtime, &client, &server.url, (size, method, budget));
             let stored_figures = report(size, &format!("similar, {method}"), run);
             let (c, u, queries) = (client.clone(), server.url.clone(), sources.queries.clone());

@@ -27,6 +27,12 @@ pub struct Config {
     pub workers: usize,
     /// Extractions waiting for a worker; when full, new ones get 503 with `Retry-After`.
     pub queue_depth: usize,
+    /// Niceness (0–19) of the extraction threads when serving: a search waiting behind
+    /// extractions of an ingest gets the cores first, and the ingest takes what is left.
+    pub extraction_nice: i32,
+    /// Rankings running at once, each on its own threads (the cores shared out); the others
+    /// wait their turn in arrival order.
+    pub rankings: usize,
     /// Time limit for one request, extraction included.
     pub request_timeout_secs: u64,
     /// Origins allowed by CORS; empty allows none, `["*"]` any.
@@ -77,6 +83,8 @@ impl Default for Config {
             max_body_bytes: 64 << 20,
             workers: std::thread::available_parallelism().map_or(2, |n| n.get()),
             queue_depth: 16,
+            rankings: std::thread::available_parallelism().map_or(2, |n| n.get()),
+            extraction_nice: 10,
             request_timeout_secs: 120,
             cors_origins: Vec::new(),
             max_k: 1000,
@@ -140,12 +148,36 @@ impl Config {
 
     /// Checks the values no server can run with.
     pub fn validate(&self) -> Result<(), String> {
-        if self.workers == 0 {
-            return Err("workers must be at least 1".into());
+        if self.workers == 0 || self.rankings == 0 {
+            return Err("workers and rankings must be at least 1".into());
+        }
+        if !(0..=19).contains(&self.extraction_nice) {
+            return Err("extraction_nice must be within 0..=19".into());
         }
         if self.max_body_bytes == 0 || self.request_timeout_secs == 0 || self.max_k == 0 {
             return Err("max_body_bytes, request_timeout_secs and max_k must be positive".into());
         }
         self.params.validate().map_err(|e| e.to_string())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn ranking_turns_and_extraction_niceness_are_bounded() {
+        assert_eq!(Config::default().validate(), Ok(()));
+        let read = |text: &str| toml::from_str::<Config>(text).unwrap();
+        let config = read("rankings = 2\nextraction_nice = 0");
+        assert_eq!((config.rankings, config.extraction_nice), (2, 0));
+        assert_eq!(config.validate(), Ok(()));
+        for bad in [
+            "rankings = 0",
+            "extraction_nice = 20",
+            "extraction_nice = -1",
+        ] {
+            assert!(read(bad).validate().is_err(), "{bad}");
+        }
     }
 }

@@ -24,6 +24,7 @@ pub struct Metrics {
     pub search_seconds: Histogram,
     pub models: Gauge,
     pub extraction_in_flight: Gauge,
+    pub rankings_waiting: Gauge,
 }
 
 impl Default for Metrics {
@@ -33,6 +34,7 @@ impl Default for Metrics {
         let search_seconds = Histogram::new(exponential_buckets(0.0005, 2.0, 14));
         let models = Gauge::default();
         let extraction_in_flight = Gauge::default();
+        let rankings_waiting = Gauge::default();
         let mut registry = Registry::with_prefix("salient");
         registry.register(
             "http_requests",
@@ -55,6 +57,11 @@ impl Default for Metrics {
             "Extractions running or queued",
             extraction_in_flight.clone(),
         );
+        registry.register(
+            "rankings_waiting",
+            "Rankings waiting for their turn (config rankings)",
+            rankings_waiting.clone(),
+        );
         Self {
             registry,
             requests,
@@ -62,6 +69,7 @@ impl Default for Metrics {
             search_seconds,
             models,
             extraction_in_flight,
+            rankings_waiting,
         }
     }
 }

@@ -14,6 +14,7 @@ mod ops;
 mod page;
 pub mod pool;
 mod previews;
+mod rankers;
 mod reindex;
 mod search;
 pub mod upload;
@@ -73,10 +74,8 @@ pub struct App {
     store: Arc<dyn Store>,
     catalog: Catalog,
     pool: Pool,
-    /// Ranking's own rayon pool. On the global pool, which extraction's parallel loops fill,
-    /// a search waited for the extractions in progress: during an ingest, the p99 latency of
-    /// `similar` over 1 000 models went from 33 ms to 2.2 s (`benches/load.rs`).
-    ranker: rayon::ThreadPool,
+    /// Ranking's own pools, one per ranking running (`config.rankings`).
+    rankers: Arc<rankers::Rankers>,
     metrics: Metrics,
     /// Serialises writes so that the store and the catalogue change in the same order.
     writes: tokio::sync::Mutex<()>,
@@ -164,19 +163,17 @@ impl App {
             config.queue_depth,
             Duration::from_secs(config.request_timeout_secs),
         );
-        let ranker = rayon::ThreadPoolBuilder::new()
-            .thread_name(|i| format!("salient-rank-{i}"))
-            .build()
-            .map_err(|e| StartError::Threads(e.to_string()))?;
         let metrics = Metrics::default();
         metrics.models.set(models as i64);
+        let rankers = rankers::Rankers::new(config.rankings, metrics.rankings_waiting.clone())
+            .map_err(|e| StartError::Threads(e.to_string()))?;
         let reindex = reindex::Reindexer::load(store.as_ref())?;
         Ok(Self {
             config,
             store,
             catalog,
             pool,
-            ranker,
+            rankers: Arc::new(rankers),
             metrics,
             writes: tokio::sync::Mutex::new(()),
             reindex,
@@ -303,14 +300,15 @@ impl App {
         Ok(Arc::new(signature))
     }
 
-    /// Runs `f` on a snapshot of the catalogue, on the ranking pool (ranking is CPU work),
-    /// in the request's tracing span. No lock is taken: a write meanwhile publishes a new
-    /// snapshot and leaves this one as it was.
+    /// Runs `f` on a snapshot of the catalogue, on a ranking pool (ranking is CPU work)
+    /// when its turn comes ([`rankers`]), in the request's tracing span. No lock is
+    /// taken: a write meanwhile publishes a new snapshot and leaves this one as it was.
     async fn read_catalog<T: Send + 'static>(
         self: &Arc<Self>,
         f: impl FnOnce(&Snapshot) -> T + Send + 'static,
     ) -> Result<T, AppError> {
         let app = self.clone();
+        let turn = self.rankers.turn().await;
         let snapshot = self.catalog.snapshot();
         let span = tracing::Span::current();
         tokio::task::spawn_blocking(move || {
@@ -318,7 +316,7 @@ impl App {
             if let Some(hook) = &app.ranking_hook {
                 hook();
             }
-            app.ranker.install(|| f(&snapshot))
+            turn.install(|| f(&snapshot))
         })
         .await
         .map_err(|e| AppError::Internal(format!("ranking failed: {e}")))
@@ -338,6 +336,12 @@ impl App {
         .await
         .map_err(|e| AppError::Internal(format!("store task failed: {e}")))?
         .map_err(AppError::from)
+    }
+
+    /// Lowers the priority of extraction ([`Config::extraction_nice`]): for the serving
+    /// process, once.
+    pub fn lower_extraction_priority(&self) {
+        pool::lower_extraction_priority(self.config.extraction_nice);
     }
 
     fn set_model_count(&self, models: usize) {

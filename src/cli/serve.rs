@@ -35,6 +35,12 @@ pub struct Args {
     /// Extractions that may wait for a worker before new ones get 503.
     #[arg(long, env = "SALIENT_QUEUE_DEPTH")]
     queue_depth: Option<usize>,
+    /// Niceness (0–19) of the extraction threads: searches get the cores before an ingest.
+    #[arg(long, env = "SALIENT_EXTRACTION_NICE")]
+    extraction_nice: Option<i32>,
+    /// Rankings running at once (each on all ranking threads); others wait in arrival order.
+    #[arg(long, env = "SALIENT_RANKINGS")]
+    rankings: Option<usize>,
     /// Largest request body, bytes.
     #[arg(long, env = "SALIENT_MAX_BODY_BYTES")]
     max_body_bytes: Option<usize>,
@@ -82,6 +88,8 @@ impl Args {
             .or_else(|| Some(config.data.clone()));
         config.workers = a.workers.unwrap_or(config.workers);
         config.queue_depth = a.queue_depth.unwrap_or(config.queue_depth);
+        config.rankings = a.rankings.unwrap_or(config.rankings);
+        config.extraction_nice = a.extraction_nice.unwrap_or(config.extraction_nice);
         config.max_body_bytes = a.max_body_bytes.unwrap_or(config.max_body_bytes);
         config.request_timeout_secs = a
             .request_timeout_secs
@@ -116,6 +124,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         .with_context(|| format!("cannot open the store in {}", config.data.display()))?;
     let addr = config.addr;
     let app_state = AppState(Arc::new(App::new(config, Arc::new(store))?));
+    app_state.0.lower_extraction_priority();
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .enable_all()
         .build()

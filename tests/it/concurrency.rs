@@ -135,8 +135,8 @@ async fn overload_is_refused_and_health_answers_meanwhile() {
 }
 
 /// The catalogue never blocks: with a ranking held in the middle (a hook on its thread,
-/// released by the test), an add completes, and reads and another ranking answer. The held
-/// ranking then finishes on the snapshot it started with.
+/// released by the test), an add completes, and reads and another ranking (two may run at
+/// once here) answer. The held ranking then finishes on the snapshot it started with.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_ranking_held_midway_blocks_neither_writes_nor_reads() {
     let (entered, wait_entered) = std::sync::mpsc::channel();
@@ -149,8 +149,12 @@ async fn a_ranking_held_midway_blocks_neither_writes_nor_reads() {
             wait_release.lock().unwrap().recv().unwrap();
         }
     });
+    let config = Config {
+        rankings: 2,
+        ..Config::default()
+    };
     let app = Arc::new(TestApp::build(
-        Config::default(),
+        config,
         Arc::new(InMemoryStore::new()),
         Some(hook),
     ));
@@ -185,4 +189,78 @@ async fn a_ranking_held_midway_blocks_neither_writes_nor_reads() {
     assert_eq!(held.status, StatusCode::OK);
     // Its snapshot held only `a`, which a similar search leaves out.
     assert_eq!(held.json()["results"].as_array().unwrap().len(), 0);
+}
+
+/// Rankings take turns (`rankings = 1` here): while one is held in the middle, a
+/// second waits for its turn — counted on `/metrics` — without starting, and runs when the
+/// first ends.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn rankings_take_turns() {
+    let (entered, wait_entered) = std::sync::mpsc::channel();
+    let (release, wait_release) = std::sync::mpsc::channel::<()>();
+    let wait_release = Mutex::new(wait_release);
+    let started = Arc::new(std::sync::atomic::AtomicUsize::new(0));
+    let counted = started.clone();
+    let hook: Hook = Arc::new(move || {
+        if counted.fetch_add(1, Ordering::SeqCst) == 0 {
+            entered.send(()).unwrap();
+            wait_release.lock().unwrap().recv().unwrap();
+        }
+    });
+    let config = Config {
+        rankings: 1,
+        ..Config::default()
+    };
+    let app = Arc::new(TestApp::build(
+        config,
+        Arc::new(InMemoryStore::new()),
+        Some(hook),
+    ));
+    for (id, mesh) in [
+        ("id=a", obj(&shapes::cone(0.5, 20, 24))),
+        ("id=b", obj(&shapes::star(2, &shapes::five_tips()))),
+    ] {
+        assert_eq!(
+            app.add(id, "model/obj", mesh).await.status,
+            StatusCode::CREATED
+        );
+    }
+    let similar = |id: &'static str| {
+        let app = app.clone();
+        tokio::spawn(async move { app.get(format!("/v1/models/{id}/similar")).send().await })
+    };
+    let first = similar("a");
+    tokio::task::spawn_blocking(move || wait_entered.recv().unwrap())
+        .await
+        .unwrap();
+    let second = similar("b");
+    // Until the second is counted as waiting, or (were turns not kept) has started.
+    while started.load(Ordering::SeqCst) == 1
+        && !app
+            .get("/metrics")
+            .send()
+            .await
+            .text()
+            .contains("salient_rankings_waiting 1")
+    {
+        tokio::task::yield_now().await;
+    }
+    assert_eq!(
+        started.load(Ordering::SeqCst),
+        1,
+        "the second ranking started beside the first"
+    );
+    release.send(()).unwrap();
+    for (ranking, other) in [(first, "b"), (second, "a")] {
+        let response = ranking.await.unwrap();
+        assert_eq!(response.status, StatusCode::OK);
+        assert_eq!(response.json()["results"][0]["id"], other);
+    }
+    assert_eq!(started.load(Ordering::SeqCst), 2);
+    assert!(app
+        .get("/metrics")
+        .send()
+        .await
+        .text()
+        .contains("salient_rankings_waiting 0"));
 }
