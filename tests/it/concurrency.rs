@@ -2,7 +2,7 @@
 //! responsive while extraction saturates the pool, and overload is a 503, not a hang.
 
 use std::collections::BTreeSet;
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
 
 use reqwest::{Client, StatusCode};
@@ -134,30 +134,56 @@ async fn overload_is_refused_and_health_answers_meanwhile() {
     assert_eq!(accepted + refused, 8);
 }
 
-/// The catalogue never blocks: with a ranking held in the middle (a hook on its thread,
-/// released by the test), an add completes, and reads and another ranking (two may run at
-/// once here) answer. The held ranking then finishes on the snapshot it started with.
-#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn a_ranking_held_midway_blocks_neither_writes_nor_reads() {
+/// A ranking held in the middle: the test learns when it is there (`wait_entered`) and lets
+/// it go on (`release`); `started` counts the rankings that reached that point.
+struct Held {
+    wait_entered: std::sync::mpsc::Receiver<()>,
+    release: std::sync::mpsc::Sender<()>,
+    started: Arc<AtomicUsize>,
+}
+
+/// An app running `rankings` rankings at once whose first ranking is held (a hook on its
+/// thread).
+fn holding_the_first_ranking(rankings: usize) -> (Arc<TestApp>, Held) {
     let (entered, wait_entered) = std::sync::mpsc::channel();
     let (release, wait_release) = std::sync::mpsc::channel::<()>();
     let wait_release = Mutex::new(wait_release);
-    let first = AtomicBool::new(true);
+    let started = Arc::new(AtomicUsize::new(0));
+    let counted = started.clone();
     let hook: Hook = Arc::new(move || {
-        if first.swap(false, Ordering::SeqCst) {
+        if counted.fetch_add(1, Ordering::SeqCst) == 0 {
             entered.send(()).unwrap();
             wait_release.lock().unwrap().recv().unwrap();
         }
     });
     let config = Config {
-        rankings: 2,
+        rankings,
         ..Config::default()
     };
-    let app = Arc::new(TestApp::build(
-        config,
-        Arc::new(InMemoryStore::new()),
-        Some(hook),
-    ));
+    let app = TestApp::build(config, Arc::new(InMemoryStore::new()), Some(hook));
+    (
+        Arc::new(app),
+        Held {
+            wait_entered,
+            release,
+            started,
+        },
+    )
+}
+
+/// The catalogue never blocks: with a ranking held in the middle (a hook on its thread,
+/// released by the test), an add completes, and reads and another ranking (two may run at
+/// once here) answer. The held ranking then finishes on the snapshot it started with.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_ranking_held_midway_blocks_neither_writes_nor_reads() {
+    let (
+        app,
+        Held {
+            wait_entered,
+            release,
+            ..
+        },
+    ) = holding_the_first_ranking(2);
     let cone = obj(&shapes::cone(0.5, 20, 24));
     assert_eq!(
         app.add("id=a", "model/obj", cone.clone()).await.status,
@@ -196,26 +222,14 @@ async fn a_ranking_held_midway_blocks_neither_writes_nor_reads() {
 /// first ends.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn rankings_take_turns() {
-    let (entered, wait_entered) = std::sync::mpsc::channel();
-    let (release, wait_release) = std::sync::mpsc::channel::<()>();
-    let wait_release = Mutex::new(wait_release);
-    let started = Arc::new(std::sync::atomic::AtomicUsize::new(0));
-    let counted = started.clone();
-    let hook: Hook = Arc::new(move || {
-        if counted.fetch_add(1, Ordering::SeqCst) == 0 {
-            entered.send(()).unwrap();
-            wait_release.lock().unwrap().recv().unwrap();
-        }
-    });
-    let config = Config {
-        rankings: 1,
-        ..Config::default()
-    };
-    let app = Arc::new(TestApp::build(
-        config,
-        Arc::new(InMemoryStore::new()),
-        Some(hook),
-    ));
+    let (
+        app,
+        Held {
+            wait_entered,
+            release,
+            started,
+        },
+    ) = holding_the_first_ranking(1);
     for (id, mesh) in [
         ("id=a", obj(&shapes::cone(0.5, 20, 24))),
         ("id=b", obj(&shapes::star(2, &shapes::five_tips()))),
