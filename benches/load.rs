@@ -416,15 +416,7 @@ fn main() {
         .expect("a client");
     let sources = sources();
     // `SALIENT_LOAD_METHODS=hybrid,d2` narrows the runs (every method by default).
-    let measured: Vec<Method> = std::env::var("SALIENT_LOAD_METHODS").map_or_else(
-        |_| Method::ALL.to_vec(),
-        |names| {
-            names
-                .split(',')
-                .map(|m| m.trim().parse().expect("SALIENT_LOAD_METHODS: methods"))
-                .collect()
-        },
-    );
+    let measured = corpus::methods_from_env("SALIENT_LOAD_METHODS");
 
     let (ingest_rate, healthz_ms) = ingest_figure(sources.ingest.path(), &runtime);
     println!(

@@ -167,16 +167,8 @@ fn real_signatures(_: &mut Criterion) {
         .expect("a pool");
     eprintln!("| method | queries | p50 ms | p99 ms | mean ms | exact per query |");
     eprintln!("|---|---|---:|---:|---:|---:|");
-    // `SALIENT_RANK_METHODS=hybrid,lfd` narrows the table (to profile one method).
-    let methods: Vec<Method> = std::env::var("SALIENT_RANK_METHODS").map_or_else(
-        |_| Method::ALL.to_vec(),
-        |names| {
-            names
-                .split(',')
-                .map(|m| m.parse().expect("a method"))
-                .collect()
-        },
-    );
+    // `SALIENT_RANK_METHODS=hybrid,lfd` narrows the table.
+    let methods = corpus::methods_from_env("SALIENT_RANK_METHODS");
     for method in methods {
         /// Queries: the id left out of the ranking (a stored model's own), and the signature.
         type Queries<'a> = Vec<(Option<&'a str>, &'a Signature)>;

@@ -7,6 +7,7 @@ use std::path::{Path, PathBuf};
 use rand::Rng;
 use rand_chacha::ChaCha8Rng;
 use salient::descriptor::LightFieldDescriptor;
+use salient::rank::Method;
 use salient::store::{SledStore, Store};
 use salient::{Params, Signature};
 
@@ -106,4 +107,18 @@ fn jitter_histogram(bins: &mut [f32], rng: &mut ChaCha8Rng, amount: f64) {
     if sum > 0.0 {
         bins.iter_mut().for_each(|v| *v /= sum);
     }
+}
+
+/// The methods named, comma-separated, in the environment variable `name`; every method when
+/// it is not set. Narrows a bench's table (to profile one method).
+pub fn methods_from_env(name: &str) -> Vec<Method> {
+    std::env::var(name).map_or_else(
+        |_| Method::ALL.to_vec(),
+        |names| {
+            names
+                .split(',')
+                .map(|m| m.trim().parse().unwrap_or_else(|e| panic!("{name}: {e}")))
+                .collect()
+        },
+    )
 }

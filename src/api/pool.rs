@@ -106,9 +106,10 @@ fn release_free_memory() {
 }
 
 /// Gives every thread of rayon's global pool — where extraction's parallel loops run;
-/// ranking has its own pool — the niceness `nice`, so that the scheduler runs a search before
-/// the extractions of an ingest: at 100 000 models with an ingest beside, `similar`'s p99
-/// was twice its p99 without. Linux only (a thread's own niceness); the serial parts of an
+/// ranking has pools of its own (`rankers`) — the niceness `nice`, so that the scheduler runs
+/// a search before the extractions of an ingest: at 100 000 models, hybrid `similar`'s p99
+/// during an ingest was 2.2× its p99 without one (1 245 against 558 ms); with this and the
+/// ranking pools, 128 against 115 ms (`benches/load.rs`). Linux only (a thread's own niceness); the serial parts of an
 /// extraction run on tokio's blocking threads, which keep theirs. An unprivileged process may
 /// raise its niceness but not lower it again, so this is for the serving process.
 pub fn lower_extraction_priority(nice: i32) {

@@ -38,7 +38,7 @@ pub struct Args {
     /// Niceness (0–19) of the extraction threads: searches get the cores before an ingest.
     #[arg(long, env = "SALIENT_EXTRACTION_NICE")]
     extraction_nice: Option<i32>,
-    /// Rankings running at once (each on all ranking threads); others wait in arrival order.
+    /// Rankings running at once (each on its own threads); others wait in arrival order.
     #[arg(long, env = "SALIENT_RANKINGS")]
     rankings: Option<usize>,
     /// Largest request body, bytes.
