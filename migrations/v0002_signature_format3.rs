@@ -3,14 +3,15 @@
 //! - `signatures`: every value of format 1 or 2 (release 0.1.0: positional `postcard` with
 //!   the parameters and statistics embedded) is decoded and written again in format 3, whose
 //!   parameters and statistics tolerate added fields (`src/signature.rs`). Values already in
-//!   format 3 are left alone, so an interrupted run simply starts again.
+//!   format 3 or later are left alone, so an interrupted run simply starts again. (It writes
+//!   today's format, which reads back the same.)
 //! - `state`: small values the service keeps between runs (`reindex`: the progress of an
 //!   online re-extraction).
 //!
 //! This changes the encoding only: what each signature says is unchanged, and a signature
 //! that is stale under the current parameters stays stale (it is re-extracted, not migrated).
 
-use crate::signature::{Signature, SIGNATURE_FORMAT};
+use crate::signature::Signature;
 use crate::store::{StoreError, StoreResult};
 
 pub fn apply(db: &sled::Db) -> StoreResult<()> {
@@ -18,7 +19,7 @@ pub fn apply(db: &sled::Db) -> StoreResult<()> {
     let signatures = db.open_tree("signatures")?;
     for entry in signatures.iter() {
         let (key, bytes) = entry?;
-        if Signature::format_of(&bytes).is_some_and(|format| format >= SIGNATURE_FORMAT) {
+        if Signature::format_of(&bytes).is_some_and(|format| format >= 3) {
             continue;
         }
         let signature = Signature::from_bytes(&bytes).map_err(|e| StoreError::Corrupt {
