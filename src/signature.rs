@@ -19,7 +19,7 @@
 //! Format 4 is format 3's sections compressed with zstd against a fixed dictionary
 //! ([`DICTIONARY`]): the parameters and statistics are mostly the same JSON keys and values in
 //! every signature, so the dictionary holds a typical pair of them and they shrink to a few
-//! dozen bytes; the light field's coefficients to about two thirds. Lossless: format 3 read
+//! dozen bytes; the light field's coefficients to about three quarters. Lossless: format 3 read
 //! and written again as format 4 reads back the same signature. Format 3 still reads.
 
 use serde::{Deserialize, Serialize};
