@@ -17,7 +17,7 @@ use crate::descriptor::lfd::{LfdSketch, LfdSummary};
 use crate::descriptor::{GeodesicDescriptor, LightFieldDescriptor};
 use crate::params::{Params, SimilarityParams};
 use crate::signature::{Signature, Staleness};
-use crate::similarity::{Features, Summary};
+use crate::similarity::{Centroid, Features, Summary};
 
 use super::shelf::Slot;
 use super::{Compared, Holds, Method};
@@ -113,10 +113,9 @@ impl Row {
         params: &SimilarityParams,
     ) -> Self {
         let features = Features::of(&signature.features);
-        let summary = Summary::of(&features, params);
         Self {
-            centroid: summary.centroid(),
-            summary,
+            centroid: features.centroid(),
+            summary: Summary::of(&features, params),
             features,
             sketch: signature.lfd.as_ref().map(|d| d.sketch()),
             lfd: signature.lfd.as_ref().map(|d| d.summary()),
@@ -267,7 +266,7 @@ impl<'a> Entry<'a> {
     }
 
     /// [`crate::similarity::centroid_bound`]'s side: the feature means and count.
-    pub fn centroid(self) -> (&'a [f32], &'a [f32], usize) {
+    pub fn centroid(self) -> Centroid<'a> {
         (
             self.chunk.ecc_mean.get(self.slot),
             self.chunk.d2_mean.get(self.slot),
