@@ -77,9 +77,10 @@ fn ground_distance(p: (&[f32], &[u16]), q: (&[f32], &[u16]), w: f64) -> f64 {
     w * ecc + (1.0 - w) * bins_l1(p.1, q.1) / BIN_SCALE
 }
 
-/// [`crate::descriptor::histogram_l1`] of two histograms stored as `u16` fractions, summed in integers: every
-/// partial sum in f64 was an exact integer too, so the value is the same bit for bit, and the
-/// loop vectorises (the ground distances of an exact EMD were a seventh of a ranking).
+/// [`crate::descriptor::histogram_l1`] of two histograms stored as `u16` fractions, summed in
+/// integers: every partial sum in f64 was an exact integer too, so the value is the same bit
+/// for bit, and the loop vectorises (the ground distances of an exact EMD were a seventh of a
+/// ranking).
 fn bins_l1(a: &[u16], b: &[u16]) -> f64 {
     // At most 65 535 a bin: u32 holds 65 536 bins' worth.
     let sum: u32 = a
@@ -286,8 +287,8 @@ pub fn explain(
 }
 
 /// What [`lower_bound`] needs of a signature beside its [`Features::centroid`], computed once
-/// per stored model: per projection ([`PROJECTIONS`]) the features' scalar projections,
-/// sorted, in one allocation.
+/// per stored model: per projection (four) the features' scalar projections, sorted, in one
+/// allocation.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Summary {
     count: usize,
