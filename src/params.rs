@@ -260,9 +260,11 @@ pub enum GeodesicRule {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct EccParams {
-    /// Local size `D_g` in normalised units (§3.2.1). 0.4, not the paper's 0.3: larger
-    /// regions gained held-out mAP on both shared collections, alone and in the hybrid
-    /// (`docs/results/study-*`, `docs/results/tune/`); [`Params::paper`] keeps 0.3.
+    /// Local size `D_g` in normalised units (§3.2.1). 0.4, not the paper's 0.3: at 20 000
+    /// vertices larger regions gained held-out mAP on both shared collections, alone and in
+    /// the hybrid (issue #12, `PARAMS_VERSION` 3); at today's 3 000 the study no longer
+    /// separates the two (`docs/results/README.md`, "Parameter study"). [`Params::paper`]
+    /// keeps 0.3.
     pub local_size: f64,
     /// Number of waves `N`, the length of an ECC vector (§3.2.2).
     pub waves: usize,
