@@ -698,19 +698,19 @@ impl Index {
         // Cheapest first: the ECC's projection bound, the relaxed EMD, both with the LFD's
         // bound, then with its distance (~50 µs), and only then the EMD itself.
         let exact = |e: Entry, kth: f64| {
-            let (d2, geodesic) = (d2(e), geodesic(e));
+            let (d2, lfd_bound, geodesic) = (d2(e), lfd_bound(e), geodesic(e));
             let projected = with_ecc(e)
                 .then(|| lower_bound((&summary, centroid), (e.summary(), e.centroid()), params));
-            if fuse(h, [projected, d2, lfd_bound(e), geodesic]) > kth {
+            if fuse(h, [projected, d2, lfd_bound, geodesic]) > kth {
                 return Ok(None);
             }
             let costs =
                 with_ecc(e).then(|| CostMatrix::new(&prepared.features, e.features(), params));
             let relaxed = costs.as_ref().map(|c| c.relaxed_bound(params));
-            if fuse(h, [relaxed, d2, lfd_bound(e), geodesic]) > kth {
+            if fuse(h, [relaxed, d2, lfd_bound, geodesic]) > kth {
                 return Ok(None);
             }
-            let lfd = match lfd_bound(e) {
+            let lfd = match lfd_bound {
                 // The LFD distance stops early past the most it may be within the k-th.
                 Some(_) => {
                     let cutoff = part_limit(h, [relaxed, d2, None, geodesic], 2, kth);
