@@ -53,6 +53,7 @@ pub mod pipeline;
 pub mod preview;
 pub mod rank;
 pub mod raster;
+pub mod register;
 pub mod render;
 pub mod salient;
 pub mod signature;

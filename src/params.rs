@@ -439,7 +439,7 @@ impl SimilarityParams {
         }
     }
 
-    fn checks(&self) -> [(bool, &'static str, &'static str); 6] {
+    fn checks(&self) -> [(bool, &'static str, &'static str); 7] {
         let h = &self.hybrid;
         let parts = h.terms();
         let d = &self.duplicates;
@@ -454,6 +454,11 @@ impl SimilarityParams {
                         .all(|r| PartialParams::RANGE.contains(r)),
                 "similarity.partial.scales",
                 "must hold 1 to 8 sizes, each in [0.2, 1]",
+            ),
+            (
+                self.partial.verified <= PartialParams::MAX_VERIFIED,
+                "similarity.partial.verified",
+                "must be at most 100",
             ),
             (
                 [
@@ -555,6 +560,11 @@ pub struct PartialParams {
     /// to the unit sphere, which magnifies a part against its source, so the part is described
     /// at each of these sizes ([`Params::at_scale`]) and a model ranks by the best.
     pub scales: Vec<f64>,
+    /// The best-fitting models whose surface the part is registered into
+    /// ([`crate::partial::Probe::residual`]) and which are re-ranked by how well it lies on
+    /// it; 0 ranks by the feature fit alone. Each costs a registration (and, when the model's
+    /// surface is not cached, its preparation).
+    pub verified: usize,
 }
 
 impl PartialParams {
@@ -563,6 +573,8 @@ impl PartialParams {
     pub const RANGE: std::ops::RangeInclusive<f64> = 0.2..=1.0;
     /// At most this many sizes: each is an extraction of the part.
     pub const MAX_SCALES: usize = 8;
+    /// At most this many verified models: each is a registration.
+    pub const MAX_VERIFIED: usize = 100;
 
     /// The sizes to describe a part at: the one the caller knows, else [`Self::scales`].
     pub fn sizes(&self, known: Option<f64>) -> Vec<f64> {
@@ -574,6 +586,7 @@ impl Default for PartialParams {
     fn default() -> Self {
         Self {
             scales: vec![0.25, 0.35, 0.5, 0.7],
+            verified: 20,
         }
     }
 }

@@ -16,11 +16,17 @@
 //! (SPEC §2.3), so a vertex near the cut has a shrunk region or none, and no region spans it.
 
 use glam::DVec3;
+use glamx::{Mat3, Vec3};
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
 
+use crate::descriptor::d2::sample_surface;
+use crate::descriptor::patch::{piece, Frame, Patches, Piece};
 use crate::mesh::refine::refine;
-use crate::mesh::RawMesh;
-use crate::params::{Params, PartialParams, SimilarityParams};
+use crate::mesh::{prepare, RawMesh};
+use crate::params::{MeshParams, Params, PartialParams, SimilarityParams};
 use crate::pipeline::compute_features;
+use crate::register::{signed_permutations, Surface};
 use crate::similarity::{part_bound, part_in, CostMatrix, Features, Summary};
 use crate::{Error, Result};
 
@@ -115,6 +121,123 @@ impl Part {
             })
             .filter(|f| f.distance <= limit)
             .min_by(|a, b| a.distance.total_cmp(&b.distance))
+    }
+}
+
+/// A stored model as verification places parts in it: its normalised surface, before
+/// smoothing (the part is not smoothed), and its patches ([`crate::descriptor::patch`]).
+pub struct Target {
+    surface: Surface,
+    patches: Patches,
+}
+
+impl Target {
+    /// The target of a stored model, prepared as extraction prepares it (SPEC §1).
+    pub fn new(raw: &RawMesh, params: &MeshParams) -> Result<Self> {
+        let mesh = prepare(raw, params)?;
+        let positions: Vec<Vec3> = mesh
+            .input_positions
+            .iter()
+            .map(|&p| Vec3::from_array(((p - mesh.centre) * mesh.scale).as_vec3().to_array()))
+            .collect();
+        Ok(Self {
+            surface: Surface::new(positions, mesh.triangles.clone())?,
+            patches: Patches::compute(&mesh.positions, &mesh.triangles, 7),
+        })
+    }
+
+    pub fn patches(&self) -> &Patches {
+        &self.patches
+    }
+}
+
+/// Patches of a target whose frames start a placement.
+const STARTS: usize = 12;
+/// Part samples that score the starts, and the starts refined by ICP.
+const COARSE: usize = 64;
+const REFINED: usize = 4;
+/// Part samples ICP fits on and the residual is measured on, and ICP's rounds.
+const SAMPLES: usize = 256;
+const ROUNDS: usize = 30;
+/// While scoring starts, a sample farther than this many part units from the surface counts
+/// as this far.
+const CAP: f32 = 0.5;
+
+/// A part as verification places it: its description and frame, and samples of its surface in
+/// that frame (centred, in its units, along its principal axes).
+pub struct Probe {
+    piece: Piece,
+    samples: Vec<Vec3>,
+}
+
+impl Probe {
+    /// The probe of a part in any units; `None` when it has no area.
+    pub fn new(raw: &RawMesh) -> Option<Self> {
+        let corners: Vec<[DVec3; 3]> = raw
+            .triangles
+            .iter()
+            .map(|t| t.map(|v| raw.positions[v as usize]))
+            .collect();
+        let mut rng = ChaCha8Rng::seed_from_u64(0x9a27);
+        let piece = piece(&corners, &mut rng)?;
+        let Frame { centre, unit, axes } = piece.frame;
+        let samples = sample_surface(&corners, SAMPLES, &mut rng)?
+            .into_iter()
+            .map(|p| {
+                let q = (p - centre) / unit;
+                Vec3::new(
+                    axes[0].dot(q) as f32,
+                    axes[1].dot(q) as f32,
+                    axes[2].dot(q) as f32,
+                )
+            })
+            .collect();
+        Some(Self { piece, samples })
+    }
+
+    pub fn description(&self) -> &[f32] {
+        &self.piece.description
+    }
+
+    /// How well the part registers into `target`: placed by the frames of the target's patches
+    /// nearest its description (their size, centre and principal axes, each proper signed
+    /// order of the axes), the best starts refined by ICP, the mean distance of its samples
+    /// from the target's surface in units of the part's size there. Near 0 for the model the
+    /// part was cut from; lower is better.
+    pub fn residual(&self, target: &Target) -> f64 {
+        let coarse = &self.samples[..COARSE.min(self.samples.len())];
+        let mut starts: Vec<(f32, Mat3, Vec3, f32)> = Vec::new();
+        for (_, frame) in target.patches.closest(&self.piece.description, STARTS) {
+            let unit = frame.unit as f32;
+            let column = |k: usize| Vec3::from_array(frame.axes[k].as_vec3().to_array());
+            // Columns are the patch's axes: a point in the part's frame goes along them.
+            let axes = Mat3::from_cols(column(0), column(1), column(2));
+            let centre = Vec3::from_array(frame.centre.as_vec3().to_array());
+            for order in signed_permutations().filter(|s| s.determinant() > 0.0) {
+                let linear = axes * order * unit;
+                let score = target
+                    .surface
+                    .mean_distance(coarse.iter().map(|&q| linear * q + centre), CAP * unit)
+                    / unit;
+                starts.push((score, linear, centre, unit));
+            }
+        }
+        starts.sort_by(|a, b| a.0.total_cmp(&b.0));
+        starts
+            .iter()
+            .take(REFINED)
+            .map(|&(_, linear, centre, unit)| {
+                let placed: Vec<Vec3> = self.samples.iter().map(|&q| linear * q + centre).collect();
+                // The patch's size is the part's only roughly (the cuts differ): ICP fits
+                // the scale too, and the residual is in units of the part's fitted size.
+                let motion = target.surface.icp(&placed, ROUNDS, true);
+                let sum: f32 = placed
+                    .iter()
+                    .map(|&p| target.surface.distance(motion.apply(p)))
+                    .sum();
+                f64::from(sum / placed.len() as f32 / (unit * motion.scale))
+            })
+            .fold(f64::INFINITY, f64::min)
     }
 }
 

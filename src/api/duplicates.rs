@@ -23,6 +23,7 @@ use super::{App, AppState};
 use crate::duplicate::{groups, verify, Evidence, Link, Shape, Verdict};
 use crate::mesh::load_bytes;
 use crate::model::{ModelId, Upload};
+use crate::partial::Target;
 use crate::pipeline::Extent;
 use crate::rank::{Method, Scope};
 use crate::signature::Signature;
@@ -31,6 +32,9 @@ use crate::signature::Signature;
 const SHAPES: NonZeroUsize = NonZeroUsize::new(64).expect("not zero");
 /// … if they have at most this many vertices, so that the cache stays under ~1 GB.
 const SHAPE_VERTICES: usize = 100_000;
+/// Partial search's registration targets kept (under 1 MB each: a surface of at most
+/// `mesh.max_vertices` and 192 patches).
+const TARGETS: NonZeroUsize = NonZeroUsize::new(64).expect("not zero");
 /// Verdicts remembered (~200 bytes each).
 const VERDICTS: NonZeroUsize = NonZeroUsize::new(200_000).expect("not zero");
 
@@ -38,6 +42,8 @@ const VERDICTS: NonZeroUsize = NonZeroUsize::new(200_000).expect("not zero");
 pub struct Verifier {
     shapes: Mutex<lru::LruCache<String, Arc<Shape>>>,
     verdicts: Mutex<lru::LruCache<(String, String), Option<Verdict>>>,
+    /// Stored models as partial search registers parts into them, by content hash.
+    pub(super) targets: Mutex<lru::LruCache<String, Arc<Target>>>,
 }
 
 impl Default for Verifier {
@@ -45,6 +51,7 @@ impl Default for Verifier {
         Self {
             shapes: Mutex::new(lru::LruCache::new(SHAPES)),
             verdicts: Mutex::new(lru::LruCache::new(VERDICTS)),
+            targets: Mutex::new(lru::LruCache::new(TARGETS)),
         }
     }
 }

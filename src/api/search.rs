@@ -10,12 +10,12 @@ use serde::{Deserialize, Serialize};
 use super::error::{AppError, ErrorBody};
 use super::models::no_model;
 use super::upload::{AppPath, AppQuery, MeshUpload, ModelPath};
-use super::{AppState, Snapshot};
+use super::{App, AppState, Snapshot};
 use crate::mesh::load_bytes;
 use crate::model::ModelId;
 use crate::model::Upload;
 use crate::params::SimilarityParams;
-use crate::partial::Part;
+use crate::partial::{Part, Probe, Target};
 use crate::pipeline::Extent;
 use crate::rank::{
     contributions, distance, hybrid_parts, Hit, Method, PartRanking, Ranking, Scope, PARTS,
@@ -92,6 +92,12 @@ pub struct SearchHit {
     /// model at.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub part_scale: Option<f64>,
+    /// With `mode=partial`, for the best-fitting models (`similarity.partial.verified`): how
+    /// far the part's surface stays from this model's once registered into it, in units of
+    /// the part's size there. Near 0 for the model the part was cut from; these models rank
+    /// first, by it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub residual: Option<f64>,
     /// With `explain=true`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub explanation: Option<Explanation>,
@@ -243,6 +249,7 @@ fn search_hits(catalog: &Snapshot, hits: Vec<Hit>) -> Vec<SearchHit> {
             SearchHit {
                 explanation: None,
                 part_scale: None,
+                residual: None,
                 rank: i + 1,
                 name: record.and_then(|r| r.name.clone()),
                 tags: record.map(|r| r.tags.clone()).unwrap_or_default(),
@@ -272,11 +279,12 @@ async fn search_part(
     let scales = app.config.params.similarity.partial.sizes(q.part_scale);
     let params = app.config.params.clone();
     let limits = app.config.limits;
-    let part = app
+    let (part, probe) = app
         .pool
         .run(move || {
             let raw = load_bytes(&upload.mesh, upload.format, &upload.resources, &limits)?;
-            Part::extract(&raw, &params, &scales, &params.similarity)
+            let part = Part::extract(&raw, &params, &scales, &params.similarity)?;
+            Ok::<_, crate::Error>((part, Probe::new(&raw)))
         })
         .await??;
     let extract_ms = clock.elapsed().as_secs_f64() * 1e3;
@@ -284,7 +292,8 @@ async fn search_part(
     let part = Arc::new(part);
     let ranked = part.clone();
     let tag = q.tag;
-    let (results, evaluated, pruned) = app
+    let verified = app.config.params.similarity.partial.verified;
+    let (mut results, hashes, evaluated, pruned) = app
         .read_catalog(move |catalog| {
             let tagged = tagged(catalog, &tag);
             let scope = Scope {
@@ -292,15 +301,59 @@ async fn search_part(
                 keep: tag.is_some().then_some(&tagged as _),
             };
             let PartRanking { ranking, scales } =
-                catalog.index.search_partial(&ranked, k, &scope)?;
+                catalog
+                    .index
+                    .search_partial(&ranked, k.max(verified), &scope)?;
+            let hashes: Vec<Option<String>> = ranking
+                .hits
+                .iter()
+                .take(verified)
+                .map(|h| {
+                    catalog
+                        .records
+                        .get(h.id.as_str())
+                        .map(|r| r.content_hash.clone())
+                })
+                .collect();
             let mut results = search_hits(catalog, ranking.hits);
             for (hit, scale) in results.iter_mut().zip(scales) {
                 hit.part_scale = Some(scale);
             }
-            Ok((results, ranking.evaluated, ranking.pruned))
+            Ok((results, hashes, ranking.evaluated, ranking.pruned))
         })
         .await?
         .map_err(AppError::index)?;
+    if let Some(probe) = probe {
+        let worker = app.0.clone();
+        let candidates: Vec<(String, Option<String>)> =
+            results.iter().map(|r| r.id.clone()).zip(hashes).collect();
+        let residuals = app
+            .pool
+            .run(move || {
+                candidates
+                    .iter()
+                    .map(|(id, hash)| {
+                        let target = match hash {
+                            Some(hash) => worker.part_target(id, hash)?,
+                            None => None,
+                        };
+                        Ok(target.map(|t| probe.residual(&t)).filter(|r| r.is_finite()))
+                    })
+                    .collect::<Result<Vec<_>, AppError>>()
+            })
+            .await??;
+        for (hit, residual) in results.iter_mut().zip(&residuals) {
+            hit.residual = *residual;
+        }
+        // Verified models first, by residual; the sort is stable, so the fit's order holds
+        // among the rest (a model deleted meanwhile has none).
+        let key = |hit: &SearchHit| hit.residual.unwrap_or(f64::INFINITY);
+        results[..residuals.len()].sort_by(|a, b| key(a).total_cmp(&key(b)));
+    }
+    results.truncate(k);
+    for (i, hit) in results.iter_mut().enumerate() {
+        hit.rank = i + 1;
+    }
     let search_seconds = search_clock.elapsed().as_secs_f64();
     app.metrics.search_seconds.observe(search_seconds);
     let part_sizes: Vec<PartSize> = part
@@ -325,6 +378,32 @@ async fn search_part(
             total_ms: clock.elapsed().as_secs_f64() * 1e3,
         },
     }))
+}
+
+impl App {
+    /// Stored model `id` (content `hash`) as partial search registers parts into it, kept
+    /// while recently used; `None` if it was deleted meanwhile.
+    fn part_target(&self, id: &str, hash: &str) -> Result<Option<Arc<Target>>, AppError> {
+        let targets = &self.verifier.targets;
+        if let Some(target) = targets.lock().expect("never poisoned").get(hash) {
+            return Ok(Some(target.clone()));
+        }
+        let Some(upload) = self.store.upload(id)? else {
+            return Ok(None);
+        };
+        let raw = load_bytes(
+            &upload.mesh,
+            upload.format,
+            &upload.resources,
+            &self.config.limits,
+        )?;
+        let target = Arc::new(Target::new(&raw, &self.config.params.mesh)?);
+        targets
+            .lock()
+            .expect("never poisoned")
+            .put(hash.to_string(), target.clone());
+        Ok(Some(target))
+    }
 }
 
 /// Ranks the catalog against `query` off the async threads.

@@ -32,8 +32,27 @@ const SAMPLES: usize = 256;
 const D2_RANGE: f64 = 4.0;
 const D1_RANGE: f64 = 2.5;
 
-/// The description of one piece of surface ([`LEN`] values), or `None` if it has no area.
-pub fn piece(triangles: &[[DVec3; 3]], rng: &mut ChaCha8Rng) -> Option<[f32; LEN]> {
+/// A piece of surface: its description and the frame it was described in.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Piece {
+    /// [`LEN`] values, the same however the piece is moved, turned or scaled.
+    pub description: [f32; LEN],
+    pub frame: Frame,
+}
+
+/// Where a piece is: its samples' centroid, their mean distance from it (`unit`), and their
+/// principal axes as rows, largest spread first. Matching two pieces' frames places one on the
+/// other, up to the axes' signs and near-equal spreads' order
+/// ([`crate::register::signed_permutations`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Frame {
+    pub centre: DVec3,
+    pub unit: f64,
+    pub axes: [DVec3; 3],
+}
+
+/// The description of one piece of surface, or `None` if it has no area.
+pub fn piece(triangles: &[[DVec3; 3]], rng: &mut ChaCha8Rng) -> Option<Piece> {
     let points = sample_surface(triangles, SAMPLES, rng)?;
     let centre = points.iter().copied().sum::<DVec3>() / points.len() as f64;
     let unit = points.iter().map(|p| p.distance(centre)).sum::<f64>() / points.len() as f64;
@@ -59,12 +78,24 @@ pub fn piece(triangles: &[[DVec3; 3]], rng: &mut ChaCha8Rng) -> Option<[f32; LEN
         }
     }
     let eigen = glamx::DSymmetricEigen3::new(glamx::DMat3::from_cols_array(&covariance));
-    let mut spreads = eigen.eigenvalues.to_array().map(|l| l.max(0.0).sqrt());
-    spreads.sort_by(|a, b| b.total_cmp(a));
-    for (k, s) in spreads.iter().enumerate() {
-        out[D2_BINS + D1_BINS + k] = *s as f32;
+    let mut principal: Vec<(f64, DVec3)> = (0..3)
+        .map(|k| {
+            let axis = DVec3::from_array(eigen.eigenvectors.col(k).to_array());
+            (eigen.eigenvalues[k].max(0.0).sqrt(), axis)
+        })
+        .collect();
+    principal.sort_by(|a, b| b.0.total_cmp(&a.0));
+    for (k, (spread, _)) in principal.iter().enumerate() {
+        out[D2_BINS + D1_BINS + k] = *spread as f32;
     }
-    Some(out)
+    Some(Piece {
+        description: out,
+        frame: Frame {
+            centre,
+            unit,
+            axes: [principal[0].1, principal[1].1, principal[2].1],
+        },
+    })
 }
 
 /// How different two pieces are: half the L1 distance of each distribution (each in [0, 1])
@@ -80,10 +111,11 @@ pub fn piece_distance(a: &[f32], b: &[f32]) -> f64 {
     l1(0..D2_BINS) / 2.0 + l1(D2_BINS..D2_BINS + D1_BINS) / 2.0 + l1(D2_BINS + D1_BINS..LEN)
 }
 
-/// A model's patches: [`LEN`] values each.
+/// A model's patches: [`LEN`] values each, and each one's frame.
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct Patches {
     pub values: Vec<f32>,
+    pub frames: Vec<Frame>,
 }
 
 impl Patches {
@@ -94,6 +126,7 @@ impl Patches {
             triangles: triangles.to_vec(),
         };
         let mut values = Vec::with_capacity(CENTRES * RADII.len() * LEN);
+        let mut frames = Vec::with_capacity(CENTRES * RADII.len());
         let mut stream = 0;
         for centre in farthest_points(positions, triangles, CENTRES) {
             for radius in RADII {
@@ -109,11 +142,12 @@ impl Patches {
                 let mut rng = ChaCha8Rng::seed_from_u64(seed);
                 rng.set_stream(stream);
                 if let Some(described) = piece(&corners, &mut rng) {
-                    values.extend(described);
+                    values.extend(described.description);
+                    frames.push(described.frame);
                 }
             }
         }
-        Self { values }
+        Self { values, frames }
     }
 
     pub fn len(&self) -> usize {
@@ -126,10 +160,20 @@ impl Patches {
 
     /// The distance of `part` ([`piece`]) to the nearest patch; infinite without patches.
     pub fn nearest(&self, part: &[f32]) -> f64 {
-        self.values
+        self.closest(part, 1).first().map_or(f64::INFINITY, |c| c.0)
+    }
+
+    /// The `n` patches nearest `part`, nearest first: each one's distance and frame.
+    pub fn closest(&self, part: &[f32], n: usize) -> Vec<(f64, Frame)> {
+        let mut all: Vec<(f64, Frame)> = self
+            .values
             .chunks_exact(LEN)
             .map(|p| piece_distance(part, p))
-            .fold(f64::INFINITY, f64::min)
+            .zip(self.frames.iter().copied())
+            .collect();
+        all.sort_by(|a, b| a.0.total_cmp(&b.0));
+        all.truncate(n);
+        all
     }
 }
 

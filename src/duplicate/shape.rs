@@ -7,17 +7,16 @@
 //! distances from each surface's samples to the other surface, in RMS radii; their mean and
 //! largest decide (`crate::duplicate::judge`).
 //!
-//! Point-to-surface distances come from parry3d's triangle mesh (a BVH); only the alignment
-//! is written here. Types are glam's as parry re-exports them (`glamx`), f32 as parry's are.
+//! Distances and ICP come from [`crate::register`]. Types are glam's as parry re-exports them
+//! (`glamx`), f32 as parry's are.
 
-use glamx::{DMat3, DVec3, Mat3, Svd3, Vec3};
-use parry3d::query::PointQuery;
-use parry3d::shape::TriMesh;
+use glamx::{DMat3, DVec3, Mat3, Vec3};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
 use crate::mesh::weld::weld;
 use crate::mesh::RawMesh;
+use crate::register::{signed_permutations, Surface};
 use crate::{Error, Result};
 
 /// Samples whose distances decide a match.
@@ -36,7 +35,7 @@ const CAP: f32 = 0.5;
 /// A welded mesh as the duplicate check compares it.
 pub struct Shape {
     /// The surface in the canonical frame.
-    surface: TriMesh,
+    surface: Surface,
     /// Area-uniform samples of the surface, canonical frame; the same for the same mesh.
     samples: Vec<Vec3>,
     /// The principal axes as rows: `canonical = axes · (p − centroid) / radius`.
@@ -116,7 +115,7 @@ impl Shape {
             .collect();
         let samples = sample(&canonical, &triangles, SAMPLES);
         let spacing = (area / (radius * radius) / triangles.len() as f64).sqrt();
-        let surface = TriMesh::new(canonical, triangles).map_err(|_| Error::NoTriangles)?;
+        let surface = Surface::new(canonical, triangles)?;
         Ok(Self {
             surface,
             samples,
@@ -149,7 +148,7 @@ impl Shape {
             from.surface
                 .vertices()
                 .iter()
-                .map(|&v| f64::from(distance(&to.surface, rotation * v)))
+                .map(|&v| f64::from(to.surface.distance(rotation * v)))
                 .try_fold(0.0f64, |worst, d| (d <= limit).then_some(worst.max(d)))
         };
         Some(largest(self, other, to_other)?.max(largest(other, self, to_other.transpose())?))
@@ -160,7 +159,14 @@ impl Shape {
     pub fn align(&self, other: &Shape) -> Alignment {
         let coarse = &self.samples[..COARSE.min(self.samples.len())];
         let mut starts: Vec<(f32, Mat3)> = signed_permutations()
-            .map(|s| (mean_distance(coarse, &other.surface, |x| s * x, CAP), s))
+            .map(|s| {
+                (
+                    other
+                        .surface
+                        .mean_distance(coarse.iter().map(|&x| s * x), CAP),
+                    s,
+                )
+            })
             .collect();
         starts.sort_by(|a, b| a.0.total_cmp(&b.0));
         let best = |proper: bool| {
@@ -185,26 +191,15 @@ impl Shape {
             .iter()
             .map(|&x| s * x)
             .collect();
-        let (mut rotation, mut shift) = (Mat3::IDENTITY, Vec3::ZERO);
-        for _ in 0..ROUNDS {
-            let targets: Vec<Vec3> = fit
-                .iter()
-                .map(|&p| {
-                    other
-                        .surface
-                        .project_local_point(rotation * p + shift, false)
-                        .point
-                })
-                .collect();
-            (rotation, shift) = kabsch(&fit, &targets);
-        }
+        let icp = other.surface.icp(&fit, ROUNDS, false);
+        let (rotation, shift) = (icp.rotation, icp.shift);
         let motion = rotation * s;
         let inverse = motion.transpose();
         let distances = |from: &Shape, to: &Shape, motion: &dyn Fn(Vec3) -> Vec3| {
             Deviation::of(
                 from.samples
                     .iter()
-                    .map(|&p| distance(&to.surface, motion(p)))
+                    .map(|&p| to.surface.distance(motion(p)))
                     .collect(),
             )
         };
@@ -256,65 +251,6 @@ fn sample(positions: &[Vec3], triangles: &[[u32; 3]], n: usize) -> Vec<Vec3> {
             a * (1.0 - r1) + b * (r1 * (1.0 - r2)) + c * (r1 * r2)
         })
         .collect()
-}
-
-/// The 48 matrices that permute the axes and flip their signs: 24 rotations, 24 reflections.
-fn signed_permutations() -> impl Iterator<Item = Mat3> {
-    const ORDERS: [[usize; 3]; 6] = [
-        [0, 1, 2],
-        [0, 2, 1],
-        [1, 0, 2],
-        [1, 2, 0],
-        [2, 0, 1],
-        [2, 1, 0],
-    ];
-    ORDERS.into_iter().flat_map(|order| {
-        (0..8).map(move |signs: u32| {
-            let column = |i: usize| {
-                let sign = if signs & (1 << i) == 0 { 1.0 } else { -1.0 };
-                Vec3::AXES[order[i]] * sign
-            };
-            Mat3::from_cols(column(0), column(1), column(2))
-        })
-    })
-}
-
-/// The mean distance of the moved points from `surface`, each capped at `cap`.
-fn mean_distance(
-    points: &[Vec3],
-    surface: &TriMesh,
-    motion: impl Fn(Vec3) -> Vec3,
-    cap: f32,
-) -> f32 {
-    let sum: f32 = points
-        .iter()
-        .map(|&p| distance(surface, motion(p)).min(cap))
-        .sum();
-    sum / points.len() as f32
-}
-
-/// The distance of `p` from the surface, inside or out (parry signs it by the side when it
-/// can tell one; a duplicate check wants the distance alone).
-fn distance(surface: &TriMesh, p: Vec3) -> f32 {
-    (surface.project_local_point(p, false).point - p).length()
-}
-
-/// The rotation and translation that move `from` closest to `to` in least squares (Kabsch).
-fn kabsch(from: &[Vec3], to: &[Vec3]) -> (Mat3, Vec3) {
-    let n = from.len() as f32;
-    let (p, q) = (
-        from.iter().copied().sum::<Vec3>() / n,
-        to.iter().copied().sum::<Vec3>() / n,
-    );
-    let h = from.iter().zip(to).fold(Mat3::ZERO, |h, (&a, &b)| {
-        let (a, b) = (a - p, b - q);
-        h + Mat3::from_cols(a * b.x, a * b.y, a * b.z)
-    });
-    let svd = Svd3::from_matrix(h);
-    let v = svd.vt.transpose();
-    let d = (v * svd.u.transpose()).determinant().signum();
-    let rotation = v * Mat3::from_diagonal(Vec3::new(1.0, 1.0, d)) * svd.u.transpose();
-    (rotation, q - rotation * p)
 }
 
 #[cfg(test)]
@@ -384,31 +320,5 @@ mod tests {
         let alignment = mirror.align(&shape);
         assert!(alignment.mirrored.max < 1e-3, "{alignment:?}");
         assert!(alignment.rotated.mean > 1e-2, "{alignment:?}");
-    }
-
-    #[test]
-    fn kabsch_recovers_a_motion() {
-        let turn = glam::Quat::from_axis_angle(glam::Vec3::new(0.3, -1.0, 0.2).normalize(), 0.7);
-        let rotation = Mat3::from_cols_array(&glam::Mat3::from_quat(turn).to_cols_array());
-        let from: Vec<Vec3> = (0..20)
-            .map(|i| {
-                Vec3::new(
-                    (i as f32).sin(),
-                    (i * i) as f32 * 0.01,
-                    (i as f32 * 0.3).cos(),
-                )
-            })
-            .collect();
-        let to: Vec<Vec3> = from
-            .iter()
-            .map(|&p| rotation * p + Vec3::new(1.0, 2.0, 3.0))
-            .collect();
-        let (r, t) = kabsch(&from, &to);
-        assert!((r - rotation)
-            .abs()
-            .to_cols_array()
-            .iter()
-            .all(|&e| e < 1e-4));
-        assert!((t - Vec3::new(1.0, 2.0, 3.0)).length() < 1e-4);
     }
 }

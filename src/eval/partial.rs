@@ -6,7 +6,7 @@
 //! measured here, not yet stored or served). Reported: how often the source ranks first and
 //! within the top 5, and how often the first result is of the source's class.
 
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, BTreeSet};
 use std::path::Path;
 use std::time::Instant;
 
@@ -22,11 +22,11 @@ use super::study::Half;
 use super::{LabelledCollection, Progress};
 use crate::collection::SignatureCache;
 use crate::descriptor::d2::sample_surface;
-use crate::descriptor::patch::{piece, Patches, CENTRES, RADII};
+use crate::descriptor::patch::{piece, CENTRES, RADII};
 use crate::mesh::prepare::normalisation;
 use crate::mesh::{load_path, RawMesh};
 use crate::params::{Limits, Params, PartialParams};
-use crate::partial::{cut, Part};
+use crate::partial::{cut, Part, Probe, Target};
 use crate::pipeline::compute;
 use crate::rank::{Hit, Index, Method, Scope};
 use crate::salient::area as triangle_area;
@@ -92,6 +92,10 @@ pub struct PartResult {
     pub partial: Found,
     pub whole: Found,
     pub patches: Found,
+    pub verified: Found,
+    pub patches_verified: Found,
+    /// The part's registration residual in its source, when a ranking verified it.
+    pub source_residual: Option<f64>,
     /// The size the part fitted its source at, when ranked.
     pub fitted_scale: Option<f64>,
 }
@@ -153,14 +157,13 @@ pub fn run(
             })?;
     }
     progress.start("patches", collection.models.len());
-    let patches: Vec<Patches> = collection
+    let targets: Vec<Target> = collection
         .models
         .par_iter()
         .map(|m| {
             let raw = load_path(&m.path, limits)?;
-            let mesh = crate::mesh::prepare(&raw, &params.mesh)?;
             progress.advance(&m.id);
-            Ok(Patches::compute(&mesh.positions, &mesh.triangles, 7))
+            Target::new(&raw, &params.mesh)
         })
         .collect::<Result<_>>()?;
     progress.finish();
@@ -200,7 +203,7 @@ pub fn run(
                 .collect();
             let described = piece(&corners, &mut ChaCha8Rng::seed_from_u64(7));
             progress.advance(&collection.models[c.source].id);
-            Ok((part, whole, described))
+            Ok((part, whole, described, Probe::new(&c.raw)))
         })
         .collect::<Result<Vec<_>>>()?;
     progress.finish();
@@ -211,25 +214,58 @@ pub fn run(
         path: std::env::temp_dir(),
         source: e,
     };
+    let position: BTreeMap<&str, usize> = collection
+        .models
+        .iter()
+        .enumerate()
+        .map(|(i, m)| (m.id.as_str(), i))
+        .collect();
     let mut parts = Vec::with_capacity(cuts.len());
-    for (c, (part, whole, described)) in cuts.iter().zip(&described) {
+    for (c, (part, whole, described, probe)) in cuts.iter().zip(&described) {
         let model = &collection.models[c.source];
+        let verified_count = params.similarity.partial.verified;
         let partial = index
-            .search_partial(part, DEPTH, &Scope::default())
+            .search_partial(part, DEPTH.max(verified_count), &Scope::default())
             .map_err(io)?;
         let whole = index.search(whole, DEPTH, Method::default()).map_err(io)?;
         let mut by_patch: Vec<Hit> = collection
             .models
             .iter()
-            .zip(&patches)
-            .map(|(m, p)| Hit {
+            .zip(&targets)
+            .map(|(m, t)| Hit {
                 id: m.id.clone(),
-                distance: described.map_or(f64::INFINITY, |d| p.nearest(&d)),
+                distance: described.map_or(f64::INFINITY, |d| t.patches().nearest(&d.description)),
             })
             .collect();
         by_patch.sort_by(|a, b| a.distance.total_cmp(&b.distance).then(a.id.cmp(&b.id)));
+        // Each candidate of either ranking registered once.
+        let candidates: BTreeSet<usize> = [&partial.ranking.hits, &by_patch]
+            .into_iter()
+            .flat_map(|hits| hits.iter().take(verified_count))
+            .map(|h| position[h.id.as_str()])
+            .collect();
+        let residuals: BTreeMap<usize, f64> = candidates
+            .into_par_iter()
+            .map(|i| {
+                let residual = probe
+                    .as_ref()
+                    .map_or(f64::INFINITY, |p| p.residual(&targets[i]));
+                (i, residual)
+            })
+            .collect();
+        let residual = |h: &Hit| residuals[&position[h.id.as_str()]];
+        let verify = |hits: &[Hit]| {
+            let mut verified = hits.to_vec();
+            let count = verified_count.min(verified.len());
+            verified[..count].sort_by(|a, b| residual(a).total_cmp(&residual(b)));
+            verified.truncate(DEPTH);
+            verified
+        };
+        let verified = verify(&partial.ranking.hits);
+        let patches_verified = verify(&by_patch);
+        let partial_hits = &partial.ranking.hits[..DEPTH.min(partial.ranking.hits.len())];
         by_patch.truncate(DEPTH);
-        let found = Found::of(&partial.ranking.hits, &model.id);
+        let found = Found::of(partial_hits, &model.id);
         parts.push(PartResult {
             source: model.id.clone(),
             class: model.class.clone(),
@@ -242,6 +278,9 @@ pub fn run(
             partial: found,
             whole: Found::of(&whole.hits, &model.id),
             patches: Found::of(&by_patch, &model.id),
+            verified: Found::of(&verified, &model.id),
+            patches_verified: Found::of(&patches_verified, &model.id),
+            source_residual: residuals.get(&c.source).copied(),
         });
     }
     let search_seconds = clock.elapsed().as_secs_f64();
@@ -271,6 +310,8 @@ pub fn run(
         rates("partial", &all, |p| &p.partial),
         rates("whole", &all, |p| &p.whole),
         rates("patches", &all, |p| &p.patches),
+        rates("verified", &all, |p| &p.verified),
+        rates("patches, verified", &all, |p| &p.patches_verified),
     ];
     let mut by_class = BTreeMap::<&str, Vec<&PartResult>>::new();
     for p in &parts {

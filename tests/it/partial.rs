@@ -7,7 +7,7 @@ use glam::DVec3;
 use salient::descriptor::patch::{piece, piece_distance, Patches};
 use salient::mesh::RawMesh;
 use salient::params::Params;
-use salient::partial::{cut, Part};
+use salient::partial::{cut, Part, Probe, Target};
 use salient::pipeline::compute;
 use salient::rank::{Index, Scope};
 use salient::similarity::{part_in, CostMatrix, Features};
@@ -88,8 +88,11 @@ fn a_piece_is_described_alike_however_it_is_moved_and_a_model_holds_its_own_piec
     };
     let part = spike();
     let moved = shapes::transformed(&part, shapes::random_motion(3));
-    let described =
-        |mesh: &RawMesh| piece(&corners(mesh), &mut ChaCha8Rng::seed_from_u64(1)).unwrap();
+    let described = |mesh: &RawMesh| {
+        piece(&corners(mesh), &mut ChaCha8Rng::seed_from_u64(1))
+            .unwrap()
+            .description
+    };
     let (a, b) = (described(&part), described(&moved));
     assert!(piece_distance(&a, &b) < 1e-3, "{}", piece_distance(&a, &b));
 
@@ -105,6 +108,47 @@ fn a_piece_is_described_alike_however_it_is_moved_and_a_model_holds_its_own_piec
         let other = patches(mesh).nearest(&a);
         assert!(star < other, "{id}: {other} vs the star's {star}");
     }
+}
+
+#[test]
+fn a_part_registers_into_its_source_however_it_is_moved_and_not_into_other_shapes() {
+    let params = Params::default();
+    let models = collection();
+    let targets: Vec<Target> = models
+        .iter()
+        .map(|(_, mesh)| Target::new(mesh, &params.mesh).unwrap())
+        .collect();
+    // Turned, moved and in other units (inches to millimetres): the same part.
+    let disguised = shapes::transformed(
+        &spike(),
+        shapes::random_motion(3) * glam::DMat4::from_scale(DVec3::splat(25.4)),
+    );
+    for part in [spike(), disguised] {
+        let probe = Probe::new(&part).unwrap();
+        let residuals: Vec<f64> = targets.iter().map(|t| probe.residual(t)).collect();
+        assert!(residuals[0] < 0.01, "{residuals:?}");
+        for (&other, (id, _)) in residuals[1..].iter().zip(&models[1..]) {
+            assert!(
+                other > 4.0 * residuals[0] && other > 0.02,
+                "{id}: {residuals:?}"
+            );
+        }
+    }
+    assert!(Probe::new(&RawMesh::default()).is_none());
+}
+
+/// Each verified model is a registration: the count is bounded.
+#[test]
+fn too_many_verified_models_are_refused() {
+    let mut params = Params::default();
+    params.similarity.partial.verified = 101;
+    assert!(matches!(
+        params.validate(),
+        Err(salient::Error::InvalidParameter {
+            name: "similarity.partial.verified",
+            ..
+        })
+    ));
 }
 
 #[test]
@@ -222,6 +266,17 @@ async fn a_part_is_searched_over_http() {
     assert_eq!(body["results"].as_array().unwrap().len(), 2);
     assert!(body["results"][0]["part_scale"].is_f64());
     assert_eq!(body["part_sizes"].as_array().unwrap().len(), 4);
+    // Both verified (`similarity.partial.verified` is 20), the source lying on its surface.
+    let residuals: Vec<f64> = body["results"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|r| r["residual"].as_f64().unwrap())
+        .collect();
+    assert!(
+        residuals[0] < 0.05 && residuals[0] * 4.0 < residuals[1],
+        "{body}"
+    );
 
     // A known size is the only one tried.
     let body = json(search("mode=partial&part_scale=0.5").await).await;

@@ -1,0 +1,179 @@
+//! Rigid registration of sampled points onto a triangle surface, shared by the near-duplicate
+//! check ([`crate::duplicate`]) and partial retrieval's verification ([`crate::partial`]):
+//! least-squares motions (Kabsch) and ICP against the surface's closest points.
+//!
+//! Point-to-surface queries come from parry3d's triangle mesh (a BVH); only the alignment is
+//! written here. Types are glam's as parry re-exports them (`glamx`), f32 as parry's are.
+
+use glamx::{Mat3, Svd3, Vec3};
+use parry3d::query::PointQuery;
+use parry3d::shape::TriMesh;
+
+use crate::{Error, Result};
+
+/// A triangle surface to measure distances from and register onto.
+pub struct Surface(TriMesh);
+
+impl Surface {
+    /// The surface of `triangles` over `positions`; an error when it has no triangle.
+    pub fn new(positions: Vec<Vec3>, triangles: Vec<[u32; 3]>) -> Result<Self> {
+        TriMesh::new(positions, triangles)
+            .map(Self)
+            .map_err(|_| Error::NoTriangles)
+    }
+
+    pub fn vertices(&self) -> &[Vec3] {
+        self.0.vertices()
+    }
+
+    /// The point of the surface closest to `p`.
+    pub fn closest(&self, p: Vec3) -> Vec3 {
+        self.0.project_local_point(p, false).point
+    }
+
+    /// The distance of `p` from the surface, inside or out (parry signs it by the side when it
+    /// can tell one; registration wants the distance alone).
+    pub fn distance(&self, p: Vec3) -> f32 {
+        (self.closest(p) - p).length()
+    }
+
+    /// The mean distance of `points` from the surface, each capped at `cap` so that a few far
+    /// points do not outweigh a good alignment elsewhere.
+    pub fn mean_distance(&self, points: impl Iterator<Item = Vec3>, cap: f32) -> f32 {
+        let (mut sum, mut count) = (0.0, 0usize);
+        for p in points {
+            sum += self.distance(p).min(cap);
+            count += 1;
+        }
+        sum / count.max(1) as f32
+    }
+
+    /// ICP: the motion that, after `rounds` rounds of matching each of `points` to its
+    /// closest surface point and solving [`fit`], brings them onto the surface; a uniform
+    /// scale too when `scaling`.
+    pub fn icp(&self, points: &[Vec3], rounds: usize, scaling: bool) -> Motion {
+        let mut motion = Motion::IDENTITY;
+        for _ in 0..rounds {
+            let targets: Vec<Vec3> = points
+                .iter()
+                .map(|&p| self.closest(motion.apply(p)))
+                .collect();
+            motion = fit(points, &targets, scaling);
+        }
+        motion
+    }
+}
+
+/// `p ↦ scale · rotation · p + shift`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Motion {
+    pub rotation: Mat3,
+    pub scale: f32,
+    pub shift: Vec3,
+}
+
+impl Motion {
+    pub const IDENTITY: Motion = Motion {
+        rotation: Mat3::IDENTITY,
+        scale: 1.0,
+        shift: Vec3::ZERO,
+    };
+
+    pub fn apply(&self, p: Vec3) -> Vec3 {
+        self.rotation * p * self.scale + self.shift
+    }
+}
+
+/// The motion that moves `from` closest to `to` in least squares: Kabsch's rotation and
+/// translation, and with `scaling` Umeyama's uniform scale (1991, Eq. 42).
+pub fn fit(from: &[Vec3], to: &[Vec3], scaling: bool) -> Motion {
+    let n = from.len() as f32;
+    let (p, q) = (
+        from.iter().copied().sum::<Vec3>() / n,
+        to.iter().copied().sum::<Vec3>() / n,
+    );
+    let h = from.iter().zip(to).fold(Mat3::ZERO, |h, (&a, &b)| {
+        let (a, b) = (a - p, b - q);
+        h + Mat3::from_cols(a * b.x, a * b.y, a * b.z)
+    });
+    let svd = Svd3::from_matrix(h);
+    let v = svd.vt.transpose();
+    let d = (v * svd.u.transpose()).determinant().signum();
+    let rotation = v * Mat3::from_diagonal(Vec3::new(1.0, 1.0, d)) * svd.u.transpose();
+    let spread: f32 = from.iter().map(|&a| (a - p).length_squared()).sum();
+    let scale = if scaling && spread > 0.0 {
+        // The singular values, the smallest signed as the rotation's handedness needs.
+        (svd.s.x + svd.s.y + d * svd.s.z) / spread
+    } else {
+        1.0
+    };
+    Motion {
+        rotation,
+        scale,
+        shift: q - rotation * p * scale,
+    }
+}
+
+/// The 48 matrices that permute the axes and flip their signs: 24 rotations, 24 reflections.
+/// Second moments fix neither the signs of principal axes nor, when two are near-equal,
+/// their order, so alignments by principal axes start from each.
+pub fn signed_permutations() -> impl Iterator<Item = Mat3> {
+    const ORDERS: [[usize; 3]; 6] = [
+        [0, 1, 2],
+        [0, 2, 1],
+        [1, 0, 2],
+        [1, 2, 0],
+        [2, 0, 1],
+        [2, 1, 0],
+    ];
+    ORDERS.into_iter().flat_map(|order| {
+        (0..8).map(move |signs: u32| {
+            let column = |i: usize| {
+                let sign = if signs & (1 << i) == 0 { 1.0 } else { -1.0 };
+                Vec3::AXES[order[i]] * sign
+            };
+            Mat3::from_cols(column(0), column(1), column(2))
+        })
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn fit_recovers_a_motion_and_a_scale() {
+        let turn = glam::Quat::from_axis_angle(glam::Vec3::new(0.3, -1.0, 0.2).normalize(), 0.7);
+        let rotation = Mat3::from_cols_array(&glam::Mat3::from_quat(turn).to_cols_array());
+        let from: Vec<Vec3> = (0..20)
+            .map(|i| {
+                Vec3::new(
+                    (i as f32).sin(),
+                    (i * i) as f32 * 0.01,
+                    (i as f32 * 0.3).cos(),
+                )
+            })
+            .collect();
+        for (scale, scaling) in [(1.0, false), (2.5, true)] {
+            let to: Vec<Vec3> = from
+                .iter()
+                .map(|&p| rotation * p * scale + Vec3::new(1.0, 2.0, 3.0))
+                .collect();
+            let motion = fit(&from, &to, scaling);
+            assert!((motion.rotation - rotation)
+                .abs()
+                .to_cols_array()
+                .iter()
+                .all(|&e| e < 1e-4));
+            assert!((motion.scale - scale).abs() < 1e-4, "{motion:?}");
+            assert!((motion.shift - Vec3::new(1.0, 2.0, 3.0)).length() < 1e-3);
+        }
+    }
+
+    #[test]
+    fn half_of_the_signed_permutations_are_rotations() {
+        let all: Vec<Mat3> = signed_permutations().collect();
+        assert_eq!(all.len(), 48);
+        assert_eq!(all.iter().filter(|m| m.determinant() > 0.0).count(), 24);
+    }
+}
