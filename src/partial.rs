@@ -241,6 +241,19 @@ impl Probe {
     }
 }
 
+/// Re-ranks the verified head of a part's fit ranking by residual ([`Probe::residual`]),
+/// lower first; entries without one (not registered: deleted meanwhile, or degenerate) go
+/// after them, and ties keep the fit's order. The one rule of `mode=partial`, the CLI's
+/// `--partial` and `salient eval partial`.
+pub fn by_residual<T>(verified: &mut [T], residual: impl Fn(&T) -> Option<f64>) {
+    let key = |t: &T| {
+        residual(t)
+            .filter(|r| r.is_finite())
+            .unwrap_or(f64::INFINITY)
+    };
+    verified.sort_by(|a, b| key(a).total_cmp(&key(b)));
+}
+
 /// The piece of `raw` inside the ball of `radius` around `centre`, and of that its largest
 /// connected component by area: a part as `salient eval partial` and the patch descriptors
 /// ([`crate::descriptor::patch`]) cut it. Triangles across the sphere are split until they

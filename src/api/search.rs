@@ -15,7 +15,7 @@ use crate::mesh::load_bytes;
 use crate::model::ModelId;
 use crate::model::Upload;
 use crate::params::SimilarityParams;
-use crate::partial::{Part, Probe, Target};
+use crate::partial::{by_residual, Part, Probe, Target};
 use crate::pipeline::Extent;
 use crate::rank::{
     contributions, distance, hybrid_parts, Hit, Method, PartRanking, Ranking, Scope, PARTS,
@@ -345,10 +345,7 @@ async fn search_part(
         for (hit, residual) in results.iter_mut().zip(&residuals) {
             hit.residual = *residual;
         }
-        // Verified models first, by residual; the sort is stable, so the fit's order holds
-        // among the rest (a model deleted meanwhile has none).
-        let key = |hit: &SearchHit| hit.residual.unwrap_or(f64::INFINITY);
-        results[..residuals.len()].sort_by(|a, b| key(a).total_cmp(&key(b)));
+        by_residual(&mut results[..residuals.len()], |hit| hit.residual);
     }
     results.truncate(k);
     for (i, hit) in results.iter_mut().enumerate() {

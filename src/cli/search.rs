@@ -10,7 +10,7 @@ use serde::Serialize;
 
 use salient::collection::{find_meshes, SignatureCache, Source};
 use salient::mesh::load_path;
-use salient::partial::Part;
+use salient::partial::{by_residual, Part, Probe, Target};
 use salient::rank::{Index, Method, Scope};
 use salient::signature::Signature;
 use salient::Limits;
@@ -75,12 +75,17 @@ struct Row {
     /// With `--partial`: the size (part radius over model radius) it fitted this model at.
     #[serde(skip_serializing_if = "Option::is_none")]
     part_scale: Option<f64>,
+    /// With `--partial`, for the verified models: the registration residual
+    /// ([`salient::partial::Probe::residual`]).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    residual: Option<f64>,
 }
 
-/// What is searched for: a whole model, or a part of one.
+/// What is searched for: a whole model, or a part of one (with its registration probe, when
+/// it has area).
 enum Query {
     Whole(Box<Signature>),
-    Part(Part),
+    Part(Part, Option<Box<Probe>>),
 }
 
 #[derive(Serialize)]
@@ -106,6 +111,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         Query::Part(
             Part::extract(&raw, &params, &scales, &params.similarity)
                 .with_context(|| args.query.display().to_string())?,
+            Probe::new(&raw).map(Box::new),
         )
     } else if args
         .query
@@ -178,15 +184,15 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 .context(unreadable)?,
             Vec::new(),
         ),
-        Query::Part(part) => {
+        Query::Part(part, _) => {
+            let verified = params.similarity.partial.verified;
             let ranked = index
-                .search_partial(part, args.k, &Scope::default())
+                .search_partial(part, args.k.max(verified), &Scope::default())
                 .context(unreadable)?;
             (ranked.ranking, ranked.scales)
         }
     };
-    let search_seconds = clock.elapsed().as_secs_f64();
-    let results: Vec<Row> = ranking
+    let mut results: Vec<Row> = ranking
         .hits
         .into_iter()
         .enumerate()
@@ -195,8 +201,25 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             id: hit.id,
             distance: hit.distance,
             part_scale: scales.get(i).copied(),
+            residual: None,
         })
         .collect();
+    if let Query::Part(_, Some(probe)) = &query {
+        let verified = params.similarity.partial.verified.min(results.len());
+        for row in &mut results[..verified] {
+            let path = args.collection.join(&row.id);
+            let raw = load_path(&path, &limits).with_context(|| path.display().to_string())?;
+            let target =
+                Target::new(&raw, &params.mesh).with_context(|| path.display().to_string())?;
+            row.residual = Some(probe.residual(&target));
+        }
+        by_residual(&mut results[..verified], |row| row.residual);
+    }
+    results.truncate(args.k);
+    for (i, row) in results.iter_mut().enumerate() {
+        row.rank = i + 1;
+    }
+    let search_seconds = clock.elapsed().as_secs_f64();
     if args.json {
         let output = Output {
             query: &args.query,
@@ -216,9 +239,13 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         println!("{}", serde_json::to_string(&output)?);
     } else {
         for r in &results {
+            let residual = r
+                .residual
+                .map(|x| format!(", residual {x:.4}"))
+                .unwrap_or_default();
             match r.part_scale {
                 Some(scale) => println!(
-                    "{:>4}  {:.6}  {}  (part at {scale})",
+                    "{:>4}  {:.6}  {}  (part at {scale}{residual})",
                     r.rank, r.distance, r.id
                 ),
                 None => println!("{:>4}  {:.6}  {}", r.rank, r.distance, r.id),

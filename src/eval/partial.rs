@@ -26,7 +26,7 @@ use crate::descriptor::patch::{piece, CENTRES, RADII};
 use crate::mesh::prepare::normalisation;
 use crate::mesh::{load_path, RawMesh};
 use crate::params::{Limits, Params, PartialParams};
-use crate::partial::{cut, Part, Probe, Target};
+use crate::partial::{by_residual, cut, Part, Probe, Target};
 use crate::pipeline::compute;
 use crate::rank::{Hit, Index, Method, Scope};
 use crate::salient::area as triangle_area;
@@ -257,7 +257,7 @@ pub fn run(
         let verify = |hits: &[Hit]| {
             let mut verified = hits.to_vec();
             let count = verified_count.min(verified.len());
-            verified[..count].sort_by(|a, b| residual(a).total_cmp(&residual(b)));
+            by_residual(&mut verified[..count], |h| Some(residual(h)));
             verified.truncate(DEPTH);
             verified
         };

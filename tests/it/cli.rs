@@ -359,6 +359,12 @@ fn search_partial_finds_the_model_a_piece_was_cut_from() {
     assert_eq!(found["partial"], true);
     assert_eq!(found["results"][0]["id"], "star.obj", "{found}");
     assert!(found["results"][0]["part_scale"].is_f64());
+    // Verified: the part lies on the star's surface, not on the next one's.
+    let residual = |i: usize| found["results"][i]["residual"].as_f64().unwrap();
+    assert!(
+        residual(0) < 0.05 && 4.0 * residual(0) < residual(1),
+        "{found}"
+    );
     let known = json_of(&salient(&[
         "search",
         part,
