@@ -34,8 +34,9 @@ for set in shrec07-watertight capod; do
         $salient eval duplicates "$set" --half "$half" --out "$out/duplicates/$set-$half"
     done
 done
-# Partial retrieval: a part cut from every model of each half, searched as a part and as a
-# whole model; the part sizes were chosen on the tuning halves.
+# Partial retrieval: a part cut from every model of each half, searched as a part (fitted,
+# then verified by registration) and as a whole model; the part sizes and the registration's
+# settings were chosen on the tuning halves.
 for set in shrec07-watertight capod; do
     for half in tuning held-out; do
         $salient eval partial "$set" --half "$half" --cache-dir "$cache/$set" \

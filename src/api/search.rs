@@ -379,7 +379,7 @@ async fn search_part(
 
 impl App {
     /// Stored model `id` (content `hash`) as partial search registers parts into it, kept
-    /// while recently used; `None` if it was deleted meanwhile.
+    /// while recently used; `None` if it was deleted meanwhile or cannot be prepared.
     fn part_target(&self, id: &str, hash: &str) -> Result<Option<Arc<Target>>, AppError> {
         let targets = &self.verifier.targets;
         if let Some(target) = targets.lock().expect("never poisoned").get(hash) {
@@ -388,13 +388,18 @@ impl App {
         let Some(upload) = self.store.upload(id)? else {
             return Ok(None);
         };
-        let raw = load_bytes(
+        // A stored model that no longer loads or prepares (limits lowered since it was
+        // added) is left unverified rather than failing the search.
+        let Ok(target) = load_bytes(
             &upload.mesh,
             upload.format,
             &upload.resources,
             &self.config.limits,
-        )?;
-        let target = Arc::new(Target::new(&raw, &self.config.params.mesh)?);
+        )
+        .and_then(|raw| Target::new(&raw, &self.config.params.mesh)) else {
+            return Ok(None);
+        };
+        let target = Arc::new(target);
         targets
             .lock()
             .expect("never poisoned")

@@ -1,10 +1,12 @@
 //! `salient eval partial`: how well a piece of a model finds its source (issue #14). Every
-//! model of a half gets three parts — each the surface inside a ball of 30–50 % of its radius around a
-//! random surface point, its largest connected piece ([`cut`]) — queried against the whole
-//! collection: as a part ([`Index::search_partial`]), as a whole model (the default method, as
-//! `/v1/search` without `mode`), and by patch descriptors ([`crate::descriptor::patch`]:
-//! measured here, not yet stored or served). Reported: how often the source ranks first and
-//! within the top 5, and how often the first result is of the source's class.
+//! model of a half gets three parts — each the surface inside a ball of 30–50 % of its radius
+//! around a random surface point, its largest connected piece ([`cut`]) — queried against the
+//! whole collection: by salient features ([`Index::search_partial`]), the same with its best
+//! `similarity.partial.verified` registered into each model's surface ([`Probe::residual`]:
+//! what `mode=partial` serves), as a whole model (the default method, as `/v1/search` without
+//! `mode`), and by patch descriptors ([`crate::descriptor::patch`]) alone and verified (not
+//! stored or served). Reported: how often the source ranks first and within the top 5, and
+//! how often the first result is of the source's class.
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::Path;
@@ -430,18 +432,22 @@ impl PartialReport {
             "# Partial retrieval: {} ({} half)\n\n\
              Three parts per model of the half (each the surface inside a ball of 30–50 % of the model's \
              radius around a random surface point, its largest piece), queried against all {} \
-             models as a part (`partial`: `mode=partial`, sizes {:?}), as a whole model \
-             (`whole`: the default method), and by patch descriptors (`patches`: each model \
-             described by pieces cut around {} surface points at {:?} of its radius, the \
-             part as one piece; measured here, not served yet). Median part size {:.2} of its model's radius, median share of its area \
+             models as a part by salient features (`partial`: sizes {:?}), the same with its \
+             best {} registered into each model's surface and re-ranked by residual \
+             (`verified`: what `mode=partial` serves), as a whole model (`whole`: the default \
+             method), by patch descriptors (`patches`: each model described by pieces cut \
+             around {} surface points at {:?} of its radius, the part as one piece; not served) \
+             and the patches' best {} verified (`patches, verified`; not served). Median part size {:.2} of its model's radius, median share of its area \
              {:.2}; {} models gave no part.\n\n{}\n\n## Partial mode per class\n\n{}\n\n\
              Seconds: signatures {:.1}, describing the parts {:.1}, searching {:.1}.\n",
             self.collection,
             self.half,
             self.models,
             self.params.scales,
+            self.params.verified,
             CENTRES,
             RADII,
+            self.params.verified,
             median(sizes),
             median(self.parts.iter().map(|p| p.area_share).collect()),
             self.uncut.len(),
