@@ -468,6 +468,7 @@ impl SimilarityParams {
                     d.mean_per_spacing,
                     d.largest,
                     d.largest_per_spacing,
+                    d.vertices,
                     d.geometry,
                 ]
                 .iter()
@@ -529,6 +530,11 @@ pub struct DuplicateParams {
     /// another pose of a model moves a limb far, however small it is.
     pub largest: f64,
     pub largest_per_spacing: f64,
+    /// … and nine in ten of the coarser mesh's vertices within this many RMS radii of the
+    /// finer surface, fitted onto it (`crate::duplicate::Shape`): a remeshing keeps its
+    /// vertices on the surface, so this holds however coarse the copy, while a morph of one
+    /// mesh (the same faces, some vertices moved) comes within the limits above.
+    pub vertices: f64,
     /// `identical_geometry` when the welded meshes have the same counts and every vertex lies
     /// within this many RMS radii of the other surface, unrotated.
     pub geometry: f64,
@@ -545,6 +551,7 @@ impl Default for DuplicateParams {
             mean_at_most: 0.025,
             largest: 0.08,
             largest_per_spacing: 1.0,
+            vertices: 0.015,
             geometry: 1e-4,
         }
     }
@@ -586,7 +593,7 @@ impl Default for PartialParams {
     fn default() -> Self {
         Self {
             scales: vec![0.25, 0.35, 0.5, 0.7],
-            verified: 20,
+            verified: 50,
         }
     }
 }

@@ -8,7 +8,9 @@
 //! index for a whole library ([`crate::rank::Index::near_pairs`]), never all pairs. Each
 //! candidate is then verified on the meshes themselves ([`Shape`]): a retrieval distance
 //! cannot tell "the same class" from "the same shape". Another pose of an articulated model
-//! moves a limb farther than [`DuplicateParams::largest`] allows, so it is another asset.
+//! moves a limb farther than [`DuplicateParams::largest`] allows, so it is another asset; a
+//! morph of one mesh (the same faces, vertices moved) moves the vertices of a remeshed copy
+//! off the other surface ([`DuplicateParams::vertices`]).
 
 mod shape;
 
@@ -95,19 +97,20 @@ impl Verdict {
 pub fn verify(a: &Shape, b: &Shape, params: &DuplicateParams) -> Option<Verdict> {
     judge(
         a.geometry_deviation(b, params.geometry),
-        || a.align(b),
+        |surfaces_pass| a.align(b, surfaces_pass),
         a.coarser(b),
         params,
     )
 }
 
 /// The verdict on a geometry deviation within `params.geometry` ([`Shape::geometry_deviation`];
-/// `None` when beyond) and, when that does not decide, an alignment ([`Shape::align`], the costly part, made only then), `spacing`
-/// the coarser mesh's triangle size ([`Shape::coarser`]). The score is 1 less the largest
-/// share of its limit a statistic used.
+/// `None` when beyond) and, when that does not decide, an alignment ([`Shape::align`], the
+/// costly part, made only then and told which surface statistics pass), `spacing` the coarser
+/// mesh's triangle size ([`Shape::coarser`]). The score is 1 less the largest share of its
+/// limit a statistic used.
 pub fn judge(
     deviation: Option<f64>,
-    alignment: impl FnOnce() -> Alignment,
+    alignment: impl FnOnce(&dyn Fn(&Deviation) -> bool) -> Alignment,
     spacing: f64,
     params: &DuplicateParams,
 ) -> Option<Verdict> {
@@ -121,14 +124,15 @@ pub fn judge(
         .mean
         .max((params.mean_per_spacing * spacing).min(params.mean_at_most));
     let largest = params.largest.max(params.largest_per_spacing * spacing);
+    let surfaces = |d: &Deviation| (d.surfaces.mean / mean).max(d.surfaces.max / largest);
     let verdict = |evidence, d: Deviation| {
-        let used = (d.mean / mean).max(d.max / largest);
+        let used = surfaces(&d).max(d.vertices.p90 / params.vertices);
         (used <= 1.0).then_some(Verdict {
             evidence,
             score: 1.0 - used,
         })
     };
-    let Alignment { rotated, mirrored } = alignment();
+    let Alignment { rotated, mirrored } = alignment(&|d| surfaces(d) <= 1.0);
     verdict(Evidence::SameShape, rotated).or_else(|| verdict(Evidence::Mirrored, mirrored))
 }
 

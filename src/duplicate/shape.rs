@@ -16,7 +16,7 @@ use rand_chacha::ChaCha8Rng;
 
 use crate::mesh::weld::weld;
 use crate::mesh::RawMesh;
-use crate::register::{signed_permutations, Surface};
+use crate::register::{signed_permutations, Motion, Surface};
 use crate::{Error, Result};
 
 /// Samples whose distances decide a match.
@@ -52,18 +52,29 @@ pub struct Alignment {
     pub mirrored: Deviation,
 }
 
-/// The distances from each surface's samples to the other surface, aligned, in RMS radii:
-/// each statistic the larger of the two directions.
-#[derive(Debug, Clone, Copy, PartialEq, Default, serde::Serialize)]
+/// How far two aligned shapes are apart, in RMS radii.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
 pub struct Deviation {
+    /// The distances from each surface's samples to the other surface: each statistic the
+    /// larger of the two directions.
+    #[serde(flatten)]
+    pub surfaces: Spread,
+    /// The coarser mesh's vertices' distances from the finer surface
+    /// ([`Shape::vertex_fit`]).
+    pub vertices: Spread,
+}
+
+/// Statistics of a set of distances.
+#[derive(Debug, Clone, Copy, PartialEq, Default, serde::Serialize)]
+pub struct Spread {
     pub mean: f64,
     pub p90: f64,
     pub p99: f64,
     pub max: f64,
 }
 
-impl Deviation {
-    const NONE: Deviation = Deviation {
+impl Spread {
+    const NONE: Spread = Spread {
         mean: f64::INFINITY,
         p90: f64::INFINITY,
         p99: f64::INFINITY,
@@ -89,6 +100,13 @@ impl Deviation {
             max: self.max.max(other.max),
         }
     }
+}
+
+impl Deviation {
+    const NONE: Deviation = Deviation {
+        surfaces: Spread::NONE,
+        vertices: Spread::NONE,
+    };
 }
 
 impl Shape {
@@ -155,8 +173,10 @@ impl Shape {
     }
 
     /// Aligns `self` onto `other` over the 48 signed axis permutations, refines the best
-    /// starts of each handedness by ICP, and measures what is left.
-    pub fn align(&self, other: &Shape) -> Alignment {
+    /// starts of each handedness by ICP, and measures what is left: the surfaces' distances,
+    /// and the vertices' ([`Shape::vertex_fit`], as costly again) only where `surfaces_pass`
+    /// (infinite elsewhere).
+    pub fn align(&self, other: &Shape, surfaces_pass: impl Fn(&Deviation) -> bool) -> Alignment {
         let coarse = &self.samples[..COARSE.min(self.samples.len())];
         let mut starts: Vec<(f32, Mat3)> = signed_permutations()
             .map(|s| {
@@ -175,8 +195,17 @@ impl Shape {
                 .filter(|(_, s)| (s.determinant() > 0.0) == proper)
                 .take(REFINED)
                 .map(|&(_, s)| self.refined(other, s))
-                .min_by(|a, b| a.mean.total_cmp(&b.mean))
-                .unwrap_or(Deviation::NONE)
+                .min_by(|a, b| a.0.mean.total_cmp(&b.0.mean))
+                .map_or(Deviation::NONE, |(surfaces, motion, shift)| {
+                    let mut deviation = Deviation {
+                        surfaces,
+                        vertices: Spread::NONE,
+                    };
+                    if surfaces_pass(&deviation) {
+                        deviation.vertices = self.vertex_fit(other, motion, shift);
+                    }
+                    deviation
+                })
         };
         Alignment {
             rotated: best(true),
@@ -184,9 +213,9 @@ impl Shape {
         }
     }
 
-    /// ICP from the start `s`: rigid motions of `s · x` onto `other`; then the deviation
-    /// both ways.
-    fn refined(&self, other: &Shape, s: Mat3) -> Deviation {
+    /// ICP from the start `s`: rigid motions of `s · x` onto `other`; then the surfaces'
+    /// distances both ways, and the motion.
+    fn refined(&self, other: &Shape, s: Mat3) -> (Spread, Mat3, Vec3) {
         let fit: Vec<Vec3> = self.samples[..FIT.min(self.samples.len())]
             .iter()
             .map(|&x| s * x)
@@ -196,15 +225,64 @@ impl Shape {
         let motion = rotation * s;
         let inverse = motion.transpose();
         let distances = |from: &Shape, to: &Shape, motion: &dyn Fn(Vec3) -> Vec3| {
-            Deviation::of(
+            Spread::of(
                 from.samples
                     .iter()
                     .map(|&p| to.surface.distance(motion(p)))
                     .collect(),
             )
         };
-        distances(self, other, &|x| motion * x + shift)
-            .larger(distances(other, self, &|y| inverse * (y - shift)))
+        (
+            distances(self, other, &|x| motion * x + shift)
+                .larger(distances(other, self, &|y| inverse * (y - shift))),
+            motion,
+            shift,
+        )
+    }
+
+    /// The coarser mesh's vertices' distances from the finer surface once fitted onto it by
+    /// ICP with a uniform scale, from the motion `x ↦ motion · x + shift` of `self` onto
+    /// `other`. A remeshing keeps its vertices on the surface it came from (an edge collapse
+    /// keeps a subset of them, a remesher projects onto it) while its faces cut chords, so
+    /// these stay near 0 for a remeshed copy however coarse, and a morph or another pose
+    /// moves them. The scale is fitted because each canonical frame's RMS radius is measured
+    /// on its own faces, which a coarse remeshing pulls inwards.
+    fn vertex_fit(&self, other: &Shape, motion: Mat3, shift: Vec3) -> Spread {
+        let (coarse, fine, start) = if self.spacing >= other.spacing {
+            (
+                self,
+                other,
+                Motion {
+                    rotation: motion,
+                    scale: 1.0,
+                    shift,
+                },
+            )
+        } else {
+            let inverse = motion.transpose();
+            (
+                other,
+                self,
+                Motion {
+                    rotation: inverse,
+                    scale: 1.0,
+                    shift: -(inverse * shift),
+                },
+            )
+        };
+        let all = coarse.surface.vertices();
+        let points: Vec<Vec3> = all
+            .iter()
+            .step_by(all.len().div_ceil(SAMPLES))
+            .map(|&p| start.apply(p))
+            .collect();
+        let fit = fine.surface.icp(&points, ROUNDS, true);
+        Spread::of(
+            points
+                .iter()
+                .map(|&p| fine.surface.distance(fit.apply(p)))
+                .collect(),
+        )
     }
 }
 
@@ -308,8 +386,8 @@ mod tests {
         let turn = DQuat::from_axis_angle(glam::DVec3::new(1.0, 2.0, 0.5).normalize(), 1.1);
         let rotated = Shape::new(&moved(&raw, |p| turn * p), 1e-6).unwrap();
         assert_eq!(rotated.geometry_deviation(&shape, 1e-2), None);
-        let alignment = rotated.align(&shape);
-        assert!(alignment.rotated.max < 1e-3, "{alignment:?}");
+        let alignment = rotated.align(&shape, |_| true);
+        assert!(alignment.rotated.surfaces.max < 1e-3, "{alignment:?}");
     }
 
     #[test]
@@ -317,8 +395,8 @@ mod tests {
         let raw = lopsided();
         let shape = Shape::new(&raw, 1e-6).unwrap();
         let mirror = Shape::new(&moved(&raw, |p| glam::DVec3::new(-p.x, p.y, p.z)), 1e-6).unwrap();
-        let alignment = mirror.align(&shape);
-        assert!(alignment.mirrored.max < 1e-3, "{alignment:?}");
-        assert!(alignment.rotated.mean > 1e-2, "{alignment:?}");
+        let alignment = mirror.align(&shape, |_| true);
+        assert!(alignment.mirrored.surfaces.max < 1e-3, "{alignment:?}");
+        assert!(alignment.rotated.surfaces.mean > 1e-2, "{alignment:?}");
     }
 }

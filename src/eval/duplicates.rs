@@ -131,6 +131,8 @@ pub struct DisguiseResult {
     pub d2: Spread,
     /// The 99th percentile of the aligned distances ([`Deviation`]).
     pub aligned: Spread,
+    /// The 90th percentile of the coarser file's vertices' distances ([`Deviation`]).
+    pub vertices: Spread,
     /// Every copy, farthest from its model first.
     pub worst: Vec<Aligned>,
 }
@@ -152,12 +154,13 @@ struct Measured {
 }
 
 fn measure(x: &Shape, y: &Shape, p: &DuplicateParams) -> Measured {
-    let alignment = x.align(y);
+    // Every pair's vertices measured, for choosing thresholds.
+    let alignment = x.align(y, |_| true);
     let spacing = x.coarser(y);
     Measured {
         verdict: judge(
             x.geometry_deviation(y, p.geometry),
-            || alignment,
+            |_| alignment,
             spacing,
             p,
         ),
@@ -409,7 +412,8 @@ pub fn run(
                 candidates: checked.iter().filter(|c| c.3).count(),
                 evidence,
                 d2: Spread::of(checked.iter().map(|c| c.1).collect()),
-                aligned: Spread::of(checked.iter().map(|c| c.0.deviation.p99).collect()),
+                aligned: Spread::of(checked.iter().map(|c| c.0.deviation.surfaces.p99).collect()),
+                vertices: Spread::of(checked.iter().map(|c| c.0.deviation.vertices.p90).collect()),
                 worst: {
                     let mut worst: Vec<Aligned> = checked
                         .iter()
@@ -420,7 +424,12 @@ pub fn run(
                             spacing: c.0.spacing,
                         })
                         .collect();
-                    worst.sort_by(|x, y| y.deviation.p99.total_cmp(&x.deviation.p99));
+                    worst.sort_by(|x, y| {
+                        y.deviation
+                            .surfaces
+                            .p99
+                            .total_cmp(&x.deviation.surfaces.p99)
+                    });
                     worst
                 },
             }
@@ -611,6 +620,7 @@ impl DuplicatesReport {
             "evidence found",
             "D2 median / max",
             "aligned median / p95 / max",
+            "vertices median / p95 / max",
         ]);
         for d in &self.disguises {
             disguises.row([
@@ -626,6 +636,10 @@ impl DuplicatesReport {
                 format!(
                     "{:.4} / {:.4} / {:.4}",
                     d.aligned.median, d.aligned.p95, d.aligned.max
+                ),
+                format!(
+                    "{:.4} / {:.4} / {:.4}",
+                    d.vertices.median, d.vertices.p95, d.vertices.max
                 ),
             ]);
         }
@@ -654,8 +668,18 @@ impl DuplicatesReport {
             ]);
         }
         let mut nearest: Vec<&Aligned> = self.negatives.iter().collect();
-        nearest.sort_by(|x, y| x.deviation.p99.total_cmp(&y.deviation.p99));
-        let n = Spread::of(self.negatives.iter().map(|a| a.deviation.p99).collect());
+        nearest.sort_by(|x, y| {
+            x.deviation
+                .surfaces
+                .p99
+                .total_cmp(&y.deviation.surfaces.p99)
+        });
+        let n = Spread::of(
+            self.negatives
+                .iter()
+                .map(|a| a.deviation.surfaces.p99)
+                .collect(),
+        );
         format!(
             "# Near-duplicates: {} ({} half)\n\n{} models, each with a re-exported and a remeshed copy \
              ({} copies). Thresholds (`similarity.duplicates`): `{}`. {} candidate pairs verified. \

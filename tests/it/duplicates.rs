@@ -37,6 +37,16 @@ fn posed() -> RawMesh {
     mesh
 }
 
+/// Another model made from the same mesh (the same faces, the vertices moved): `mesh` 12 %
+/// longer along x. Libraries hold such morphs (CAPOD's airplanes m42, m44 and m46).
+fn stretched(mesh: &RawMesh) -> RawMesh {
+    let mut mesh = mesh.clone();
+    for p in &mut mesh.positions {
+        p.x *= 1.12;
+    }
+    mesh
+}
+
 /// `mesh` remeshed to about half its vertices, then rotated, scaled by 0.1 and moved.
 fn remeshed(mesh: &RawMesh) -> RawMesh {
     let welded = weld(mesh, 1e-6).unwrap();
@@ -103,6 +113,29 @@ fn a_model_and_its_disguised_copies_are_one_asset_and_another_pose_is_not() {
     assert_eq!(evidence(&shapes::tube(0.3, 30, 24)), None, "another shape");
     let four_limbs = shapes::star(4, &shapes::five_tips()[..4]);
     assert_eq!(evidence(&four_limbs), None, "a limb fewer");
+}
+
+#[test]
+fn a_remeshed_morph_is_not_the_model_it_was_made_from() {
+    // Coarser than `model()`, so a remeshing moves the surface as far as the morph does.
+    let coarse = shapes::star(3, &shapes::five_tips());
+    let original = shape(&coarse);
+    let params = DuplicateParams::default();
+    let evidence = |copy: &RawMesh, params: &DuplicateParams| {
+        verify(&original, &shape(copy), params).map(|v| v.evidence)
+    };
+    assert_eq!(
+        evidence(&remeshed(&coarse), &params),
+        Some(Evidence::SameShape)
+    );
+    let morph = remeshed(&stretched(&coarse));
+    assert_eq!(evidence(&morph, &params), None);
+    // What tells them apart is where the vertices lie, not the surfaces' distances.
+    let surfaces_only = DuplicateParams {
+        vertices: 10.0,
+        ..params
+    };
+    assert_eq!(evidence(&morph, &surfaces_only), Some(Evidence::SameShape));
 }
 
 #[test]

@@ -266,7 +266,7 @@ async fn a_part_is_searched_over_http() {
     assert_eq!(body["results"].as_array().unwrap().len(), 2);
     assert!(body["results"][0]["part_scale"].is_f64());
     assert_eq!(body["part_sizes"].as_array().unwrap().len(), 4);
-    // Both verified (`similarity.partial.verified` is 20), the source lying on its surface.
+    // Both verified (`similarity.partial.verified` is 50), the source lying on its surface.
     let residuals: Vec<f64> = body["results"]
         .as_array()
         .unwrap()
