@@ -181,7 +181,11 @@ mod tests {
         let points: Vec<Vec3> = (0..1000)
             .map(|i| {
                 let t = i as f32;
-                Vec3::new((t * 0.37).sin(), 0.3 * (t * 0.61).cos(), 0.003 * (t * 1.3).sin())
+                Vec3::new(
+                    (t * 0.37).sin(),
+                    0.3 * (t * 0.61).cos(),
+                    0.003 * (t * 1.3).sin(),
+                )
             })
             .collect();
         for scaling in [false, true] {
