@@ -117,6 +117,65 @@ pub enum StartError {
     Anonymous(std::net::SocketAddr),
 }
 
+/// Stored models are read from the store by one thread, in batches, while the batch before is
+/// decoded and made into index rows in parallel: reading (sled's pages), decoding a signature
+/// and making its row (the LFD's summaries, the shelf's write) are each a large part of a start.
+const LOAD_BATCH: usize = 1024;
+
+/// The catalogue of every stored model, and how many signatures are stale for their
+/// parameters and for a missing descriptor.
+fn load(config: &Config, store: &dyn Store) -> Result<(Snapshot, usize, usize), StartError> {
+    use rayon::prelude::*;
+    let mut snapshot = Snapshot::empty(config.params.similarity.clone(), config.shelf_dir.clone());
+    let (mut stale_parameters, mut missing_descriptor) = (0, 0);
+    std::thread::scope(|scope| {
+        let (batches, received) = std::sync::mpsc::sync_channel(1);
+        scope.spawn(move || {
+            let mut stored = store.load_all();
+            loop {
+                let batch = stored
+                    .by_ref()
+                    .take(LOAD_BATCH)
+                    .collect::<Result<Vec<_>, _>>();
+                let last = batch.as_ref().map_or(true, Vec::is_empty);
+                // A closed channel means the loader stopped at an error: so does the reader.
+                if batches.send(batch).is_err() || last {
+                    break;
+                }
+            }
+        });
+        for batch in received {
+            let batch = batch?;
+            let index = &snapshot.index;
+            let rows = batch
+                .into_par_iter()
+                .map(|loaded| {
+                    let signature = Signature::from_bytes(&loaded.signature).map_err(|source| {
+                        StartError::Signature {
+                            id: loaded.record.id.to_string(),
+                            source,
+                        }
+                    })?;
+                    let row = index
+                        .row(loaded.record.id.as_str(), &signature)
+                        .map_err(StartError::Shelf)?;
+                    Ok((loaded.record, row, signature.staleness(&config.params)))
+                })
+                .collect::<Result<Vec<_>, StartError>>()?;
+            for (record, row, staleness) in rows {
+                match staleness {
+                    Some(Staleness::Parameters) => stale_parameters += 1,
+                    Some(Staleness::MissingDescriptor) => missing_descriptor += 1,
+                    None => {}
+                }
+                snapshot.put(record, row);
+            }
+        }
+        Ok::<_, StartError>(())
+    })?;
+    Ok((snapshot, stale_parameters, missing_descriptor))
+}
+
 impl App {
     /// Loads every stored signature into the catalogue. Stale ones keep serving until they
     /// are re-extracted ([`App::start_background`]).
@@ -126,28 +185,7 @@ impl App {
         if keys.is_empty() && !config.addr.ip().is_loopback() && !config.allow_anonymous {
             return Err(StartError::Anonymous(config.addr));
         }
-        let mut snapshot =
-            Snapshot::empty(config.params.similarity.clone(), config.shelf_dir.clone());
-        let (mut stale_parameters, mut missing_descriptor) = (0, 0);
-        for loaded in store.load_all() {
-            let loaded = loaded?;
-            let signature = Signature::from_bytes(&loaded.signature).map_err(|source| {
-                StartError::Signature {
-                    id: loaded.record.id.to_string(),
-                    source,
-                }
-            })?;
-            match signature.staleness(&config.params) {
-                Some(Staleness::Parameters) => stale_parameters += 1,
-                Some(Staleness::MissingDescriptor) => missing_descriptor += 1,
-                None => {}
-            }
-            let row = snapshot
-                .index
-                .row(loaded.record.id.as_str(), &signature)
-                .map_err(StartError::Shelf)?;
-            snapshot.put(loaded.record, row);
-        }
+        let (snapshot, stale_parameters, missing_descriptor) = load(&config, store.as_ref())?;
         let models = snapshot.records.len();
         let catalog = Catalog::new(snapshot);
         if stale_parameters + missing_descriptor > 0 {

@@ -7,7 +7,7 @@ use glam::{DMat3, DVec3};
 use salient::descriptor::lfd::zernike::orders;
 use salient::descriptor::lfd::{
     fourier_descriptors, zernike_magnitudes, Cameras, ImageFeatures, LightFieldDescriptor,
-    Silhouette, IMAGE_SIZE, LIGHT_FIELDS, ROTATIONS, VIEWS,
+    Silhouette, COEFFICIENTS, IMAGE_SIZE, LIGHT_FIELDS, PACKED, ROTATIONS, VIEWS,
 };
 use salient::mesh::{prepare, PreparedMesh, RawMesh};
 use salient::params::MeshParams;
@@ -277,6 +277,73 @@ fn a_rotated_copy_is_near_and_other_shapes_are_far() {
                 );
             }
         }
+    }
+}
+
+/// The LFD distance by its definition: every light-field pair, every rotation, every image's
+/// L1 distance summed in full.
+fn brute_distance(a: &LightFieldDescriptor, b: &LightFieldDescriptor) -> f64 {
+    let l1 = |x: &ImageFeatures, y: &ImageFeatures| -> u32 {
+        let (x, y) = (x.coefficients(), y.coefficients());
+        x.iter().zip(y).map(|(&p, &q)| p.abs_diff(q) as u32).sum()
+    };
+    let mut best = u32::MAX;
+    for p in 0..LIGHT_FIELDS {
+        for q in 0..LIGHT_FIELDS {
+            let (rows, columns) = (a.light_field(p), b.light_field(q));
+            for permutation in &Cameras::get().permutations {
+                let sum = (0..VIEWS)
+                    .map(|v| l1(&rows[v], &columns[permutation[v] as usize]))
+                    .sum();
+                best = best.min(sum);
+            }
+        }
+    }
+    best as f64 / (VIEWS * COEFFICIENTS * 255) as f64
+}
+
+#[test]
+fn the_pruned_distance_is_the_least_over_every_pair_and_rotation() {
+    use rand::{Rng, SeedableRng};
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(2003);
+    let random = |rng: &mut rand_chacha::ChaCha8Rng| {
+        let mut bytes = [0u8; PACKED];
+        rng.fill(&mut bytes[..]);
+        bytes
+    };
+    let permutations = &Cameras::get().permutations;
+    for trial in 0..40 {
+        let a = random(&mut rng);
+        // `b`: one of `a`'s light fields with its views turned by a rotation and nudged, the
+        // others unrelated — the least is that pair's, which the bounds must not prune —
+        // or, every fourth trial, no relation at all.
+        let mut b = random(&mut rng);
+        if trial % 4 != 0 {
+            let (p, q) = (
+                rng.gen_range(0..LIGHT_FIELDS),
+                rng.gen_range(0..LIGHT_FIELDS),
+            );
+            let rotation = &permutations[rng.gen_range(0..ROTATIONS)];
+            for v in 0..VIEWS {
+                for c in 0..COEFFICIENTS {
+                    let from = a[(p * VIEWS + v) * COEFFICIENTS + c];
+                    let nudge = rng.gen_range(0..=trial as u8);
+                    b[(q * VIEWS + rotation[v] as usize) * COEFFICIENTS + c] =
+                        from.saturating_add(nudge);
+                }
+            }
+        }
+        let (a, b) = (
+            LightFieldDescriptor::unpacked(&a),
+            LightFieldDescriptor::unpacked(&b),
+        );
+        let brute = brute_distance(&a, &b);
+        assert_eq!(a.distance(&b), brute, "trial {trial}");
+        assert_eq!(b.distance(&a), brute, "trial {trial}");
+        // A cutoff at the distance keeps it; one just below gives none.
+        let with = |cutoff| a.distance_with(&a.summary(), &b, &b.summary(), cutoff);
+        assert_eq!(with(brute), Some(brute), "trial {trial}");
+        assert_eq!(with(brute * (1.0 - 1e-9)), None, "trial {trial}");
     }
 }
 
