@@ -197,3 +197,44 @@ fn reopen(dir: &std::path::Path) -> salient::store::StoreResult<SledStore> {
     }
     result
 }
+
+/// A start reads the store in batches while it decodes the batch before: every model of a
+/// store several batches long is served, and an unreadable signature stops the start with an
+/// error naming its model (not a panic, not a hang of the reading thread).
+#[test]
+fn a_start_loads_every_model_across_batches_and_names_an_unreadable_one() {
+    use salient::api::{App, Config};
+    use salient::store::InMemoryStore;
+    use std::sync::Arc;
+
+    let signature =
+        salient::pipeline::compute(&shapes::icosphere(1), &salient::Params::default()).unwrap();
+    let bytes = signature.to_bytes();
+    let store = Arc::new(InMemoryStore::new());
+    let count = 2_500;
+    for i in 0..count {
+        let upload = upload(format!("# model {i}\n").as_bytes());
+        let record = ModelRecord::new(
+            ModelId::parse(&format!("m{i:05}")).unwrap(),
+            Fields::default(),
+            &upload,
+            &signature,
+        );
+        store.put(&record, &bytes, &upload).unwrap();
+    }
+    let app = App::new(Config::default(), store.clone()).expect("the service starts");
+    assert_eq!(app.catalog_len(), count);
+
+    let upload = upload(b"# the unreadable one\n");
+    let unreadable = ModelRecord::new(
+        ModelId::parse("m01234x").unwrap(),
+        Fields::default(),
+        &upload,
+        &signature,
+    );
+    store.put(&unreadable, b"not a signature", &upload).unwrap();
+    let error = App::new(Config::default(), store)
+        .err()
+        .expect("an unreadable signature stops the start");
+    assert!(error.to_string().contains("m01234x"), "{error}");
+}
