@@ -82,6 +82,17 @@ impl Motion {
     pub fn apply(&self, p: Vec3) -> Vec3 {
         self.rotation * p * self.scale + self.shift
     }
+
+    /// The motion undoing this one (`rotation` is a rotation or a reflection, so its
+    /// inverse is its transpose).
+    pub fn inverse(&self) -> Motion {
+        let rotation = self.rotation.transpose();
+        Motion {
+            rotation,
+            scale: 1.0 / self.scale,
+            shift: -(rotation * self.shift) / self.scale,
+        }
+    }
 }
 
 /// The motion that moves `from` closest to `to` in least squares: Kabsch's rotation and

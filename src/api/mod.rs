@@ -186,6 +186,7 @@ impl App {
             return Err(StartError::Anonymous(config.addr));
         }
         let (snapshot, stale_parameters, missing_descriptor) = load(&config, store.as_ref())?;
+        pool::release_free_memory();
         let models = snapshot.records.len();
         let catalog = Catalog::new(snapshot);
         if stale_parameters + missing_descriptor > 0 {

@@ -91,12 +91,12 @@ impl Pool {
     }
 }
 
-/// Hands the allocator's free memory back to the system after an extraction. An extraction
-/// allocates tens of megabytes across rayon's threads, and glibc kept what they freed in its
-/// per-thread arenas: in the load bench at 100 000 models the server grew from 630 MiB
-/// resident after start-up to 973 MiB after its uploads. (glibc only; other allocators
-/// return memory themselves.)
-fn release_free_memory() {
+/// Hands the allocator's free memory back to the system after an extraction, or after the
+/// start's parallel decoding. An extraction allocates tens of megabytes across rayon's
+/// threads, and glibc kept what they freed in its per-thread arenas: in the load bench at
+/// 100 000 models the server grew from 630 MiB resident after start-up to 973 MiB after its
+/// uploads. (glibc only; other allocators return memory themselves.)
+pub(crate) fn release_free_memory() {
     #[cfg(all(target_os = "linux", target_env = "gnu"))]
     // SAFETY: `malloc_trim` takes no pointers; it only walks the allocator's own free lists,
     // under the allocator's locks, and may be called from any thread at any time.

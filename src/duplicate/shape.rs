@@ -65,7 +65,7 @@ pub struct Deviation {
 }
 
 /// Statistics of a set of distances.
-#[derive(Debug, Clone, Copy, PartialEq, Default, serde::Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
 pub struct Spread {
     pub mean: f64,
     pub p90: f64,
@@ -196,13 +196,13 @@ impl Shape {
                 .take(REFINED)
                 .map(|&(_, s)| self.refined(other, s))
                 .min_by(|a, b| a.0.mean.total_cmp(&b.0.mean))
-                .map_or(Deviation::NONE, |(surfaces, motion, shift)| {
+                .map_or(Deviation::NONE, |(surfaces, motion)| {
                     let mut deviation = Deviation {
                         surfaces,
                         vertices: Spread::NONE,
                     };
                     if surfaces_pass(&deviation) {
-                        deviation.vertices = self.vertex_fit(other, motion, shift);
+                        deviation.vertices = self.vertex_fit(other, motion);
                     }
                     deviation
                 })
@@ -215,60 +215,42 @@ impl Shape {
 
     /// ICP from the start `s`: rigid motions of `s · x` onto `other`; then the surfaces'
     /// distances both ways, and the motion.
-    fn refined(&self, other: &Shape, s: Mat3) -> (Spread, Mat3, Vec3) {
+    fn refined(&self, other: &Shape, s: Mat3) -> (Spread, Motion) {
         let fit: Vec<Vec3> = self.samples[..FIT.min(self.samples.len())]
             .iter()
             .map(|&x| s * x)
             .collect();
         let icp = other.surface.icp(&fit, ROUNDS, false);
-        let (rotation, shift) = (icp.rotation, icp.shift);
-        let motion = rotation * s;
-        let inverse = motion.transpose();
-        let distances = |from: &Shape, to: &Shape, motion: &dyn Fn(Vec3) -> Vec3| {
+        let motion = Motion {
+            rotation: icp.rotation * s,
+            ..icp
+        };
+        let back = motion.inverse();
+        let distances = |from: &Shape, to: &Shape, motion: Motion| {
             Spread::of(
                 from.samples
                     .iter()
-                    .map(|&p| to.surface.distance(motion(p)))
+                    .map(|&p| to.surface.distance(motion.apply(p)))
                     .collect(),
             )
         };
         (
-            distances(self, other, &|x| motion * x + shift)
-                .larger(distances(other, self, &|y| inverse * (y - shift))),
+            distances(self, other, motion).larger(distances(other, self, back)),
             motion,
-            shift,
         )
     }
 
     /// The coarser mesh's vertices' distances from the finer surface once fitted onto it by
-    /// ICP with a uniform scale, from the motion `x ↦ motion · x + shift` of `self` onto
-    /// `other`. A remeshing keeps its vertices on the surface it came from (an edge collapse
+    /// ICP with a uniform scale, from the motion `onto` of `self` onto `other`. A remeshing keeps its vertices on the surface it came from (an edge collapse
     /// keeps a subset of them, a remesher projects onto it) while its faces cut chords, so
     /// these stay near 0 for a remeshed copy however coarse, and a morph or another pose
     /// moves them. The scale is fitted because each canonical frame's RMS radius is measured
     /// on its own faces, which a coarse remeshing pulls inwards.
-    fn vertex_fit(&self, other: &Shape, motion: Mat3, shift: Vec3) -> Spread {
+    fn vertex_fit(&self, other: &Shape, onto: Motion) -> Spread {
         let (coarse, fine, start) = if self.spacing >= other.spacing {
-            (
-                self,
-                other,
-                Motion {
-                    rotation: motion,
-                    scale: 1.0,
-                    shift,
-                },
-            )
+            (self, other, onto)
         } else {
-            let inverse = motion.transpose();
-            (
-                other,
-                self,
-                Motion {
-                    rotation: inverse,
-                    scale: 1.0,
-                    shift: -(inverse * shift),
-                },
-            )
+            (other, self, onto.inverse())
         };
         let all = coarse.surface.vertices();
         let points: Vec<Vec3> = all

@@ -128,11 +128,11 @@ pub struct DisguiseResult {
     /// Evidence found between copy and model, by name (`none` when not a duplicate).
     pub evidence: BTreeMap<String, usize>,
     /// D2 distances and aligned distances between copy and model.
-    pub d2: Spread,
+    pub d2: Distribution,
     /// The 99th percentile of the aligned distances ([`Deviation`]).
-    pub aligned: Spread,
+    pub aligned: Distribution,
     /// The 90th percentile of the coarser file's vertices' distances ([`Deviation`]).
-    pub vertices: Spread,
+    pub vertices: Distribution,
     /// Every copy, farthest from its model first.
     pub worst: Vec<Aligned>,
 }
@@ -180,7 +180,7 @@ pub struct FalseLink {
 
 /// The median, 95th percentile and largest of some values (smallest too, for negatives).
 #[derive(Debug, Clone, Default, Serialize)]
-pub struct Spread {
+pub struct Distribution {
     pub count: usize,
     pub min: f64,
     pub median: f64,
@@ -188,7 +188,7 @@ pub struct Spread {
     pub max: f64,
 }
 
-impl Spread {
+impl Distribution {
     fn of(mut values: Vec<f64>) -> Self {
         if values.is_empty() {
             return Self::default();
@@ -411,9 +411,13 @@ pub fn run(
                 copies: checked.len(),
                 candidates: checked.iter().filter(|c| c.3).count(),
                 evidence,
-                d2: Spread::of(checked.iter().map(|c| c.1).collect()),
-                aligned: Spread::of(checked.iter().map(|c| c.0.deviation.surfaces.p99).collect()),
-                vertices: Spread::of(checked.iter().map(|c| c.0.deviation.vertices.p90).collect()),
+                d2: Distribution::of(checked.iter().map(|c| c.1).collect()),
+                aligned: Distribution::of(
+                    checked.iter().map(|c| c.0.deviation.surfaces.p99).collect(),
+                ),
+                vertices: Distribution::of(
+                    checked.iter().map(|c| c.0.deviation.vertices.p90).collect(),
+                ),
                 worst: {
                     let mut worst: Vec<Aligned> = checked
                         .iter()
@@ -674,7 +678,7 @@ impl DuplicatesReport {
                 .p99
                 .total_cmp(&y.deviation.surfaces.p99)
         });
-        let n = Spread::of(
+        let n = Distribution::of(
             self.negatives
                 .iter()
                 .map(|a| a.deviation.surfaces.p99)
