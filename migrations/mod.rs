@@ -3,6 +3,7 @@
 mod v0001_initial;
 mod v0002_signature_format3;
 mod v0003_previews;
+mod v0004_patches;
 
 use crate::store::StoreResult;
 
@@ -29,5 +30,10 @@ pub const MIGRATIONS: &[Migration] = &[
         version: 3,
         name: "preview cache",
         apply: v0003_previews::apply,
+    },
+    Migration {
+        version: 4,
+        name: "patch descriptor cache",
+        apply: v0004_patches::apply,
     },
 ];

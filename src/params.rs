@@ -567,10 +567,12 @@ pub struct PartialParams {
     /// to the unit sphere, which magnifies a part against its source, so the part is described
     /// at each of these sizes ([`Params::at_scale`]) and a model ranks by the best.
     pub scales: Vec<f64>,
-    /// The best-fitting models whose surface the part is registered into
-    /// ([`crate::partial::Probe::residual`]) and which are re-ranked by how well it lies on
-    /// it; 0 ranks by the feature fit alone. Each costs a registration (and, when the model's
-    /// surface is not cached, its preparation).
+    /// How many models the part is registered into ([`crate::partial::Probe::residual`]),
+    /// which then rank first by how well it lies on their surface: the models nearest it by
+    /// their stored patches, and as many of the feature fit's best among models whose
+    /// patches are not made yet ([`crate::rank::Index::search_partial`]); 0 ranks by the
+    /// feature fit alone. Each costs a registration (and, when the model's surface is not
+    /// cached, its preparation).
     pub verified: usize,
 }
 

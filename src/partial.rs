@@ -25,7 +25,7 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
 use crate::descriptor::d2::sample_surface;
-use crate::descriptor::patch::{piece, Frame, Patches, Piece};
+use crate::descriptor::patch::{piece, Frame, Layout, Packed, Patches, Piece};
 use crate::mesh::refine::refine;
 use crate::mesh::{prepare, RawMesh};
 use crate::params::{MeshParams, Params, PartialParams, SimilarityParams};
@@ -146,13 +146,25 @@ impl Target {
             .collect();
         Ok(Self {
             surface: Surface::new(positions, mesh.triangles.clone())?,
-            patches: Patches::compute(&mesh.positions, &mesh.triangles, 7),
+            patches: Patches::compute(&mesh.positions, &mesh.triangles, 7, Layout::FRAMES),
         })
     }
 
     pub fn patches(&self) -> &Patches {
         &self.patches
     }
+}
+
+/// The stored patches of a model's upload ([`Layout::STORED`]), prepared as extraction
+/// prepares it (SPEC §1).
+pub fn stored_patches(raw: &RawMesh, params: &MeshParams) -> Result<Packed> {
+    let mesh = prepare(raw, params)?;
+    Ok(Packed::of(&Patches::compute(
+        &mesh.positions,
+        &mesh.triangles,
+        7,
+        Layout::STORED,
+    )))
 }
 
 /// Patches of a target whose frames start a placement. These settings were chosen on CAPOD's
@@ -274,7 +286,7 @@ pub fn cut(raw: &RawMesh, centre: DVec3, radius: f64) -> Option<RawMesh> {
             && distances.iter().any(|&d| d < radius)
             && distances.iter().any(|&d| d > radius)
     };
-    let refined = refine(raw, across);
+    let refined = refine(&near(raw, centre, radius), across);
     let raw = &refined;
     let corners = |t: &[u32; 3]| t.map(|v| raw.positions[v as usize]);
     let inside: Vec<[u32; 3]> = raw
@@ -316,4 +328,28 @@ pub fn cut(raw: &RawMesh, centre: DVec3, radius: f64) -> Option<RawMesh> {
         positions,
         triangles,
     })
+}
+
+/// The triangles of `raw` that may reach the ball of `radius` around `centre`, in their order,
+/// with every position: none of a triangle is nearer the centre than its nearest corner less
+/// its longest edge. [`cut`] of it is [`cut`] of `raw` (its midpoints get the same numbers),
+/// at a fraction of the cost when the ball is small against the mesh.
+pub fn near(raw: &RawMesh, centre: DVec3, radius: f64) -> RawMesh {
+    RawMesh {
+        positions: raw.positions.clone(),
+        triangles: raw
+            .triangles
+            .iter()
+            .filter(|t| {
+                let [a, b, c] = t.map(|v| raw.positions[v as usize]);
+                let longest = a.distance(b).max(b.distance(c)).max(c.distance(a));
+                let nearest = a
+                    .distance(centre)
+                    .min(b.distance(centre))
+                    .min(c.distance(centre));
+                nearest - longest <= radius
+            })
+            .copied()
+            .collect(),
+    }
 }

@@ -13,6 +13,7 @@
 //! so that a pass over all of them streams through memory; the light field descriptors, read
 //! only for the few candidates the bounds leave, are kept in a file (`rank/shelf.rs`).
 
+use std::collections::HashSet;
 use std::fmt;
 use std::io;
 use std::path::PathBuf;
@@ -25,7 +26,7 @@ use serde::{Deserialize, Serialize};
 use crate::descriptor::geodesic::Cumulative;
 use crate::descriptor::{histogram_l1, GeodesicDescriptor, LightFieldDescriptor};
 use crate::params::{HybridParams, Params, SimilarityParams};
-use crate::partial::Part;
+use crate::partial::{Fit, Part};
 use crate::signature::Signature;
 use crate::similarity::{
     centroid_bound, compare_costs, lower_bound, CostMatrix, Features, Summary,
@@ -313,11 +314,14 @@ pub struct Ranking {
 }
 
 /// A [`Ranking`] of models by how well they contain a part, and the size the part fitted
-/// each hit at (its radius over the model's, [`crate::params::PartialParams::scales`]).
+/// each hit at (its radius over the model's, [`crate::params::PartialParams::scales`]). Its
+/// first `candidates` hits are the ones to verify ([`Index::search_partial`]); the rest follow
+/// in the fit's order.
 #[derive(Debug, Clone, PartialEq)]
 pub struct PartRanking {
     pub ranking: Ranking,
     pub scales: Vec<f64>,
+    pub candidates: usize,
 }
 
 /// What ranking compares of each model of a collection, with what it precomputes for its
@@ -730,32 +734,74 @@ impl Index {
         self.cascade(k, self.admits(scope), coarse, fine, exact)
     }
 
-    /// The `k` entries in `scope` that best contain `part` ([`crate::partial`]), best first,
-    /// each with the size the part fitted it at; entries without salient features are left
-    /// out. Pruned by [`Part::bound`] like the other methods: the same top `k` as a full scan.
-    pub fn search_partial(&self, part: &Part, k: usize, scope: &Scope) -> io::Result<PartRanking> {
+    /// What `mode=partial` ranks (its one rule, served and evaluated): first the candidates to
+    /// verify — the `verified` models nearest the part by their stored patches (`nearest`,
+    /// nearest first, [`crate::descriptor::patch::Packed`]), then the fit's best `verified` of
+    /// the models without patches (a library whose patches are still being made) — then the
+    /// `k` entries in `scope` that best contain `part` ([`crate::partial`]), best first. Each
+    /// hit has the size the part fitted it at; entries without salient features are left out.
+    /// The fit is pruned by [`Part::bound`] like the other methods: the same top `k` as a full
+    /// scan.
+    pub fn search_partial(
+        &self,
+        part: &Part,
+        k: usize,
+        scope: &Scope,
+        (nearest, verified): (&[(f64, &str)], usize),
+    ) -> io::Result<PartRanking> {
         let params = &self.params;
         let admits = self.admits(scope);
-        let ranking = self.cascade(
-            k,
-            |e| admits(e) && e.summary().features() > 0,
+        let fitted = |e: Entry| admits(e) && e.summary().features() > 0;
+        let fit = self.cascade(
+            k.max(verified),
+            fitted,
             |e| part.bound(e.summary()),
             // The first bound is the only one; it orders the visit.
             |_, _| Some(0.0),
             |e, kth| Ok(part.fit(e.features(), params, kth).map(|f| f.distance)),
         )?;
-        // The cascade ranks by distance alone: the k hits' sizes are found again.
-        let scales = ranking
+        let fit_of = |id: &str| {
+            let e = self.entries.get(*self.position.get(id)?);
+            fitted(e).then(|| part.fit(e.features(), params, f64::INFINITY))?
+        };
+        // The patches' nearest that the part fits, then the fit's best of the models without
+        // patches: each once, verified; then the rest of the fit's ranking.
+        let patched: HashSet<&str> = nearest.iter().map(|&(_, id)| id).collect();
+        let mut chosen: Vec<(&str, Fit)> = nearest
+            .iter()
+            .filter_map(|&(_, id)| Some((id, fit_of(id)?)))
+            .take(verified)
+            .collect();
+        let unpatched = fit.hits.iter().take(verified).map(|h| h.id.as_str());
+        chosen.extend(
+            unpatched
+                .filter(|id| !patched.contains(id))
+                .filter_map(|id| Some((id, fit_of(id)?))),
+        );
+        let candidates = chosen.len();
+        let taken: HashSet<&str> = chosen.iter().map(|&(id, _)| id).collect();
+        let rest: Vec<(&str, Fit)> = fit
             .hits
             .iter()
-            .map(|hit| {
-                let e = self.entries.get(self.position[hit.id.as_str()]);
-                part.fit(e.features(), params, f64::INFINITY)
-                    .expect("a ranked entry fits")
-                    .scale
-            })
+            .filter(|h| !taken.contains(h.id.as_str()))
+            .filter_map(|h| Some((h.id.as_str(), fit_of(&h.id)?)))
             .collect();
-        Ok(PartRanking { ranking, scales })
+        chosen.extend(rest);
+        Ok(PartRanking {
+            scales: chosen.iter().map(|(_, f)| f.scale).collect(),
+            ranking: Ranking {
+                hits: chosen
+                    .iter()
+                    .map(|&(id, f)| Hit {
+                        id: id.to_string(),
+                        distance: f.distance,
+                    })
+                    .collect(),
+                evaluated: fit.evaluated + candidates,
+                pruned: fit.pruned,
+            },
+            candidates,
+        })
     }
 
     /// Light field ranking with [`crate::descriptor::lfd::LfdSummary::lower_bound`]; entries without a descriptor are

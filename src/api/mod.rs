@@ -12,6 +12,7 @@ mod metrics;
 mod models;
 mod ops;
 mod page;
+mod patches;
 pub mod pool;
 mod previews;
 mod rankers;
@@ -94,6 +95,8 @@ pub struct App {
     /// Held from the duplicate check of an upload that rejects duplicates until it is stored,
     /// so that two copies uploaded at once cannot both pass.
     duplicate_gate: tokio::sync::Mutex<()>,
+    /// The models whose patches are still to be made.
+    patcher: patches::Patcher,
 }
 
 /// Starting the service failed.
@@ -223,6 +226,7 @@ impl App {
             ranking_hook: None,
             verifier: duplicates::Verifier::default(),
             duplicate_gate: tokio::sync::Mutex::new(()),
+            patcher: patches::Patcher::default(),
         })
     }
 
@@ -242,12 +246,19 @@ impl App {
 
     /// Starts the background work the store calls for: a re-extraction left unfinished by
     /// the last run, or one of the stale signatures found at start (unless
-    /// `reindex_on_start` is off). Needs a Tokio runtime.
+    /// `reindex_on_start` is off); and the patches of every model without them
+    /// ([`patches`]). Needs a Tokio runtime.
     pub fn start_background(self: &Arc<Self>) {
         let stale = self.stale_count();
         if self.reindex.was_running() || (self.config.reindex_on_start && stale > 0) {
             reindex::start(self);
         }
+        patches::start(self);
+    }
+
+    /// How many models' patches are still to be made (`None` before the start's count).
+    pub fn patches_pending(&self) -> tokio::sync::watch::Receiver<Option<usize>> {
+        self.patcher.pending()
     }
 
     /// Models in the catalogue.

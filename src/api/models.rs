@@ -123,6 +123,7 @@ pub async fn add_model(
     }
     let models = app.catalog.put(record.clone(), row);
     app.set_model_count(models);
+    app.patcher.stored(record.id.clone());
     let status = if previous.is_some() {
         StatusCode::OK
     } else {

@@ -10,7 +10,7 @@
 use std::sync::Arc;
 use std::time::Duration;
 
-use tokio::sync::Semaphore;
+use tokio::sync::{Notify, Semaphore};
 
 use super::error::AppError;
 
@@ -20,6 +20,8 @@ pub struct Pool {
     running: Arc<Semaphore>,
     capacity: usize,
     timeout: Duration,
+    /// Told when the last admitted job ends ([`Pool::idle`]).
+    drained: Arc<Notify>,
 }
 
 impl Pool {
@@ -29,6 +31,22 @@ impl Pool {
             running: Arc::new(Semaphore::new(workers)),
             capacity: workers + queue_depth,
             timeout,
+            drained: Arc::new(Notify::new()),
+        }
+    }
+
+    /// Returns once no admitted job is running or waiting: background work that should not
+    /// delay requests waits for this before it asks for a worker.
+    pub async fn idle(&self) {
+        loop {
+            let drained = self.drained.notified();
+            tokio::pin!(drained);
+            // Registered before the check, so an end between the check and the wait counts.
+            drained.as_mut().enable();
+            if self.in_flight() == 0 {
+                return;
+            }
+            drained.await;
         }
     }
 
@@ -42,13 +60,14 @@ impl Pool {
         &self,
         job: impl FnOnce() -> T + Send + 'static,
     ) -> Result<T, AppError> {
-        let admitted =
-            self.admitted
-                .clone()
-                .try_acquire_owned()
-                .map_err(|_| AppError::Overloaded {
+        let admitted = Admitted {
+            permit: Some(self.admitted.clone().try_acquire_owned().map_err(|_| {
+                AppError::Overloaded {
                     retry_after_secs: 1,
-                })?;
+                }
+            })?),
+            pool: (self.admitted.clone(), self.capacity, self.drained.clone()),
+        };
         match tokio::time::timeout(self.timeout, self.run_with(admitted, job)).await {
             Ok(result) => result,
             Err(_) => Err(AppError::Timeout(self.timeout.as_secs())),
@@ -88,6 +107,23 @@ impl Pool {
         })
         .await
         .map_err(|join| AppError::Internal(format!("extraction failed: {join}")))
+    }
+}
+
+/// A request's place in the pool (running or waiting); when the last one goes, whether its
+/// job ended or never ran (its caller gave up), [`Pool::idle`] is told.
+struct Admitted {
+    permit: Option<tokio::sync::OwnedSemaphorePermit>,
+    pool: (Arc<Semaphore>, usize, Arc<Notify>),
+}
+
+impl Drop for Admitted {
+    fn drop(&mut self) {
+        drop(self.permit.take());
+        let (admitted, capacity, drained) = &self.pool;
+        if admitted.available_permits() == *capacity {
+            drained.notify_waiters();
+        }
     }
 }
 
@@ -215,6 +251,27 @@ mod tests {
         first.await.unwrap().unwrap();
         pool.run_background(|| ()).await.unwrap();
         assert!(!ran.load(Ordering::SeqCst));
+    }
+
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn idle_waits_for_every_admitted_job_to_end() {
+        let pool = Arc::new(Pool::new(1, 1, Duration::from_secs(600)));
+        pool.idle().await;
+        let (job, release) = held(&pool);
+        let (waiting, pending) = (pool.clone(), pool.clone());
+        let idle = tokio::spawn(async move { waiting.idle().await });
+        // A second job, admitted and waiting for the worker, whose caller goes away.
+        let gone = tokio::spawn(async move { pending.run(|| ()).await });
+        while pool.in_flight() < 2 {
+            tokio::task::yield_now().await;
+        }
+        gone.abort();
+        assert!(gone.await.unwrap_err().is_cancelled());
+        assert!(!idle.is_finished(), "the first job still runs");
+        release.send(()).unwrap();
+        job.await.unwrap().unwrap();
+        idle.await.unwrap();
+        assert_eq!(pool.in_flight(), 0);
     }
 
     #[tokio::test]

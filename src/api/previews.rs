@@ -24,6 +24,7 @@ use crate::preview::Preview;
 use crate::render::{comparison, png, thumbnail};
 use crate::signature::Signature;
 use crate::similarity::explain;
+use crate::store::Derived;
 
 /// Sides of pictures, pixels.
 const DEFAULT_SIZE: u32 = 256;
@@ -117,7 +118,7 @@ impl Source {
     async fn preview(&self, app: &AppState) -> Result<Arc<Preview>, AppError> {
         let id = self.id.clone();
         let cached = app
-            .with_store(move |store| store.preview(id.as_str()))
+            .with_store(move |store| store.derived(Derived::Preview, id.as_str()))
             .await?;
         if let Some(preview) = cached.and_then(|e| Preview::from_cache_entry(&e, &self.key)) {
             return Ok(Arc::new(preview));
@@ -142,8 +143,10 @@ impl Source {
             .await??;
         let entry = preview.to_cache_entry(&self.key);
         let (id, content_hash) = (self.id.clone(), self.content_hash.clone());
-        app.with_store(move |store| store.put_preview(id.as_str(), &content_hash, &entry))
-            .await?;
+        app.with_store(move |store| {
+            store.put_derived(Derived::Preview, id.as_str(), &content_hash, &entry)
+        })
+        .await?;
         Ok(Arc::new(preview))
     }
 }

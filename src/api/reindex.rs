@@ -229,6 +229,8 @@ async fn reextract(app: &Arc<App>, id: &ModelId) -> Result<(), String> {
         .map_err(hidden)?;
     if updated {
         app.catalog.put(record, row);
+        // Its patches were made from the mesh as the old parameters prepared it.
+        app.patcher.stored(id.clone());
     }
     Ok(())
 }

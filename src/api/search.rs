@@ -11,6 +11,7 @@ use super::error::{AppError, ErrorBody};
 use super::models::no_model;
 use super::upload::{AppPath, AppQuery, MeshUpload, ModelPath};
 use super::{App, AppState, Snapshot};
+use crate::descriptor::patch::{Packed, PackedPiece};
 use crate::mesh::load_bytes;
 use crate::model::ModelId;
 use crate::model::Upload;
@@ -22,6 +23,7 @@ use crate::rank::{
 };
 use crate::signature::Signature;
 use crate::similarity::explain;
+use crate::store::{Derived, Store, StoreResult};
 
 /// Query of the search endpoints.
 #[derive(Debug, Deserialize, utoipa::IntoParams)]
@@ -46,8 +48,10 @@ pub struct SearchQuery {
     pub explain: Option<bool>,
     /// `whole` (default): the upload is a model. `partial` (`POST /v1/search` only): the
     /// upload is a piece of one — cut from it, with an open boundary — and the results are
-    /// the models with a part like it, ranked by how well all of its salient features fit
-    /// among theirs. `method`, `w` and `explain` do not apply.
+    /// the models with a part like it: first those it was registered into (the nearest by
+    /// their stored patch descriptors, `similarity.partial.verified` of them), by how well
+    /// it lies on their surface, then the others by how well all of its salient features
+    /// fit among theirs. `method`, `w` and `explain` do not apply.
     #[param(value_type = Option<String>, pattern = "^(whole|partial)$")]
     pub mode: Option<SearchMode>,
     /// With `mode=partial`: the part's size in its model, when known (its largest distance
@@ -92,10 +96,10 @@ pub struct SearchHit {
     /// model at.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub part_scale: Option<f64>,
-    /// With `mode=partial`, for the best-fitting models (`similarity.partial.verified`): how
-    /// far the part's surface stays from this model's once registered into it, in units of
-    /// the part's size there. Near 0 for the model the part was cut from; these models rank
-    /// first, by it.
+    /// With `mode=partial`, for the models the part was registered into (those nearest it by
+    /// their stored patches, `similarity.partial.verified` of them): how far the part's
+    /// surface stays from this model's once registered into it, in units of the part's size
+    /// there. Near 0 for the model the part was cut from; these models rank first, by it.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub residual: Option<f64>,
     /// With `explain=true`.
@@ -289,6 +293,15 @@ async fn search_part(
         .await??;
     let extract_ms = clock.elapsed().as_secs_f64() * 1e3;
     let search_clock = Instant::now();
+    // The stored patches nearest the part: they pick the models to verify.
+    let nearest = match &probe {
+        Some(probe) => {
+            let part = Packed::piece(probe.description());
+            app.with_store(move |store| nearest_patches(store, &part))
+                .await?
+        }
+        None => Vec::new(),
+    };
     let part = Arc::new(part);
     let ranked = part.clone();
     let tag = q.tag;
@@ -300,14 +313,19 @@ async fn search_part(
                 without: None,
                 keep: tag.is_some().then_some(&tagged as _),
             };
-            let PartRanking { ranking, scales } =
-                catalog
-                    .index
-                    .search_partial(&ranked, k.max(verified), &scope)?;
+            let nearest: Vec<(f64, &str)> =
+                nearest.iter().map(|(d, id)| (*d, id.as_str())).collect();
+            let PartRanking {
+                ranking,
+                scales,
+                candidates,
+            } = catalog
+                .index
+                .search_partial(&ranked, k, &scope, (&nearest, verified))?;
             let hashes: Vec<Option<String>> = ranking
                 .hits
                 .iter()
-                .take(verified)
+                .take(candidates)
                 .map(|h| {
                     catalog
                         .records
@@ -375,6 +393,21 @@ async fn search_part(
             total_ms: clock.elapsed().as_secs_f64() * 1e3,
         },
     }))
+}
+
+/// Every model with stored patches ([`Derived::Patches`] of today's layout), nearest `part`
+/// first (ties by id). A model without (added since the patches were last made, or stored by
+/// an earlier release) is left to the fit ([`crate::rank::Index::search_partial`]).
+fn nearest_patches(store: &dyn Store, part: &PackedPiece) -> StoreResult<Vec<(f64, String)>> {
+    let mut nearest = Vec::new();
+    for entry in store.all_derived(Derived::Patches) {
+        let (id, bytes) = entry?;
+        if let Some(packed) = Packed::from_bytes(&bytes) {
+            nearest.push((packed.nearest(part), id.to_string()));
+        }
+    }
+    nearest.sort_by(|a, b| a.0.total_cmp(&b.0).then_with(|| a.1.cmp(&b.1)));
+    Ok(nearest)
 }
 
 impl App {

@@ -24,13 +24,13 @@ use super::study::Half;
 use super::{LabelledCollection, Progress};
 use crate::collection::SignatureCache;
 use crate::descriptor::d2::sample_surface;
-use crate::descriptor::patch::{piece, CENTRES, RADII};
+use crate::descriptor::patch::{Layout, Packed};
 use crate::mesh::prepare::normalisation;
 use crate::mesh::{load_path, RawMesh};
 use crate::params::{Limits, Params, PartialParams};
-use crate::partial::{by_residual, cut, Part, Probe, Target};
+use crate::partial::{by_residual, cut, stored_patches, Part, Probe, Target};
 use crate::pipeline::compute;
-use crate::rank::{Hit, Index, Method, Scope};
+use crate::rank::{Hit, Index, Method, PartRanking, Scope};
 use crate::salient::area as triangle_area;
 use crate::Result;
 
@@ -94,8 +94,10 @@ pub struct PartResult {
     pub partial: Found,
     pub whole: Found,
     pub patches: Found,
+    /// The fit's own best verified (what was served before patches were stored).
+    pub fit_verified: Found,
+    /// What `mode=partial` serves.
     pub verified: Found,
-    pub patches_verified: Found,
     /// The part's registration residual in its source, when a ranking verified it.
     pub source_residual: Option<f64>,
     /// The size the part fitted its source at, when ranked.
@@ -159,13 +161,16 @@ pub fn run(
             })?;
     }
     progress.start("patches", collection.models.len());
-    let targets: Vec<Target> = collection
+    let targets: Vec<(Target, Packed)> = collection
         .models
         .par_iter()
         .map(|m| {
             let raw = load_path(&m.path, limits)?;
             progress.advance(&m.id);
-            Target::new(&raw, &params.mesh)
+            Ok((
+                Target::new(&raw, &params.mesh)?,
+                stored_patches(&raw, &params.mesh)?,
+            ))
         })
         .collect::<Result<_>>()?;
     progress.finish();
@@ -197,15 +202,8 @@ pub fn run(
         .map(|c| {
             let part = Part::extract(&c.raw, params, scales, &params.similarity)?;
             let whole = compute(&c.raw, params)?;
-            let mesh = crate::mesh::prepare(&c.raw, &params.mesh)?;
-            let corners: Vec<[DVec3; 3]> = mesh
-                .triangles
-                .iter()
-                .map(|t| t.map(|v| mesh.positions[v as usize]))
-                .collect();
-            let described = piece(&corners, &mut ChaCha8Rng::seed_from_u64(7));
             progress.advance(&collection.models[c.source].id);
-            Ok((part, whole, described, Probe::new(&c.raw)))
+            Ok((part, whole, Probe::new(&c.raw)))
         })
         .collect::<Result<Vec<_>>>()?;
     progress.finish();
@@ -223,27 +221,36 @@ pub fn run(
         .map(|(i, m)| (m.id.as_str(), i))
         .collect();
     let mut parts = Vec::with_capacity(cuts.len());
-    for (c, (part, whole, described, probe)) in cuts.iter().zip(&described) {
+    for (c, (part, whole, probe)) in cuts.iter().zip(&described) {
         let model = &collection.models[c.source];
         let verified_count = params.similarity.partial.verified;
-        let partial = index
-            .search_partial(part, DEPTH.max(verified_count), &Scope::default())
+        // The stored patches of every model, nearest the part first (a library whose patches
+        // are all made); none for a part without area.
+        let mut by_patch: Vec<(f64, &str)> = probe
+            .as_ref()
+            .map(|p| {
+                let part = Packed::piece(p.description());
+                collection
+                    .models
+                    .iter()
+                    .zip(&targets)
+                    .map(|(m, (_, packed))| (packed.nearest(&part), m.id.as_str()))
+                    .collect()
+            })
+            .unwrap_or_default();
+        by_patch.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(b.1)));
+        // What is served, and the same with the fit's own candidates (no model patched).
+        let served = index
+            .search_partial(part, DEPTH, &Scope::default(), (&by_patch, verified_count))
+            .map_err(io)?;
+        let fit = index
+            .search_partial(part, DEPTH, &Scope::default(), (&[], verified_count))
             .map_err(io)?;
         let whole = index.search(whole, DEPTH, Method::default()).map_err(io)?;
-        let mut by_patch: Vec<Hit> = collection
-            .models
-            .iter()
-            .zip(&targets)
-            .map(|(m, t)| Hit {
-                id: m.id.clone(),
-                distance: described.map_or(f64::INFINITY, |d| t.patches().nearest(&d.description)),
-            })
-            .collect();
-        by_patch.sort_by(|a, b| a.distance.total_cmp(&b.distance).then(a.id.cmp(&b.id)));
         // Each candidate of either ranking registered once.
-        let candidates: BTreeSet<usize> = [&partial.ranking.hits, &by_patch]
+        let candidates: BTreeSet<usize> = [&served, &fit]
             .into_iter()
-            .flat_map(|hits| hits.iter().take(verified_count))
+            .flat_map(|r| r.ranking.hits.iter().take(r.candidates))
             .map(|h| position[h.id.as_str()])
             .collect();
         let residuals: BTreeMap<usize, f64> = candidates
@@ -251,23 +258,28 @@ pub fn run(
             .map(|i| {
                 let residual = probe
                     .as_ref()
-                    .map_or(f64::INFINITY, |p| p.residual(&targets[i]));
+                    .map_or(f64::INFINITY, |p| p.residual(&targets[i].0));
                 (i, residual)
             })
             .collect();
         let residual = |h: &Hit| residuals[&position[h.id.as_str()]];
-        let verify = |hits: &[Hit]| {
-            let mut verified = hits.to_vec();
-            let count = verified_count.min(verified.len());
-            by_residual(&mut verified[..count], |h| Some(residual(h)));
+        let verify = |ranked: &PartRanking| {
+            let mut verified = ranked.ranking.hits.clone();
+            by_residual(&mut verified[..ranked.candidates], |h| Some(residual(h)));
             verified.truncate(DEPTH);
             verified
         };
-        let verified = verify(&partial.ranking.hits);
-        let patches_verified = verify(&by_patch);
-        let partial_hits = &partial.ranking.hits[..DEPTH.min(partial.ranking.hits.len())];
-        by_patch.truncate(DEPTH);
-        let found = Found::of(partial_hits, &model.id);
+        // The fit alone: its own ranking, the candidates taken from the fit.
+        let fit_alone = &fit.ranking.hits[..DEPTH.min(fit.ranking.hits.len())];
+        let patches_alone: Vec<Hit> = by_patch
+            .iter()
+            .take(DEPTH)
+            .map(|&(distance, id)| Hit {
+                id: id.to_string(),
+                distance,
+            })
+            .collect();
+        let found = Found::of(fit_alone, &model.id);
         parts.push(PartResult {
             source: model.id.clone(),
             class: model.class.clone(),
@@ -276,12 +288,12 @@ pub fn run(
             size: c.size,
             vertices: c.raw.positions.len(),
             features: part.sizes().collect(),
-            fitted_scale: found.rank.map(|r| partial.scales[r - 1]),
+            fitted_scale: found.rank.map(|r| fit.scales[r - 1]),
             partial: found,
             whole: Found::of(&whole.hits, &model.id),
-            patches: Found::of(&by_patch, &model.id),
-            verified: Found::of(&verified, &model.id),
-            patches_verified: Found::of(&patches_verified, &model.id),
+            patches: Found::of(&patches_alone, &model.id),
+            fit_verified: Found::of(&verify(&fit), &model.id),
+            verified: Found::of(&verify(&served), &model.id),
             source_residual: residuals.get(&c.source).copied(),
         });
     }
@@ -312,8 +324,8 @@ pub fn run(
         rates("partial", &all, |p| &p.partial),
         rates("whole", &all, |p| &p.whole),
         rates("patches", &all, |p| &p.patches),
+        rates("fit, verified", &all, |p| &p.fit_verified),
         rates("verified", &all, |p| &p.verified),
-        rates("patches, verified", &all, |p| &p.patches_verified),
     ];
     let mut by_class = BTreeMap::<&str, Vec<&PartResult>>::new();
     for p in &parts {
@@ -432,21 +444,20 @@ impl PartialReport {
             "# Partial retrieval: {} ({} half)\n\n\
              Three parts per model of the half (each the surface inside a ball of 30–50 % of the model's \
              radius around a random surface point, its largest piece), queried against all {} \
-             models as a part by salient features (`partial`: sizes {:?}), the same with its \
-             best {} registered into each model's surface and re-ranked by residual \
-             (`verified`: what `mode=partial` serves), as a whole model (`whole`: the default \
-             method), by patch descriptors (`patches`: each model described by pieces cut \
-             around {} surface points at {:?} of its radius, the part as one piece; not served) \
-             and the patches' best {} verified (`patches, verified`; not served). Median part size {:.2} of its model's radius, median share of its area \
-             {:.2}; {} models gave no part.\n\n{}\n\n## Partial mode per class\n\n{}\n\n\
+             models as a part by salient features (`partial`: sizes {:?}), by the stored patch \
+             descriptors (`patches`: each model described by pieces cut around {} surface \
+             points at {:?} of its radius, the part as one piece), as a whole model (`whole`: \
+             the default method), and with the best {} registered into each model's surface and \
+             re-ranked by residual: the fit's best (`fit, verified`) or the patches' best \
+             (`verified`: what `mode=partial` serves). Median part size {:.2} of its model's \
+             radius, median share of its area {:.2}; {} models gave no part.\n\n{}\n\n## Partial mode per class\n\n{}\n\n\
              Seconds: signatures {:.1}, describing the parts {:.1}, searching {:.1}.\n",
             self.collection,
             self.half,
             self.models,
             self.params.scales,
-            self.params.verified,
-            CENTRES,
-            RADII,
+            Layout::STORED.centres,
+            Layout::STORED.radii,
             self.params.verified,
             median(sizes),
             median(self.parts.iter().map(|p| p.area_share).collect()),

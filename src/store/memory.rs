@@ -6,7 +6,7 @@ use std::sync::{Mutex, MutexGuard};
 
 use bytes::Bytes;
 
-use super::{Loaded, Store, StoreResult};
+use super::{Derived, Loaded, Store, StoreResult};
 use crate::model::{sha256_hex, ModelId, ModelRecord, Upload};
 
 #[derive(Default)]
@@ -16,7 +16,7 @@ struct Inner {
     blobs: BTreeMap<String, (Bytes, u64)>,
     content: BTreeMap<String, ModelId>,
     state: BTreeMap<String, Vec<u8>>,
-    previews: BTreeMap<ModelId, Vec<u8>>,
+    derived: BTreeMap<(Derived, ModelId), Vec<u8>>,
 }
 
 impl Inner {
@@ -34,7 +34,9 @@ impl Inner {
 
     fn unlink(&mut self, old: &ModelRecord) {
         self.models.remove(&old.id);
-        self.previews.remove(&old.id);
+        for cache in [Derived::Preview, Derived::Patches] {
+            self.derived.remove(&(cache, old.id.clone()));
+        }
         let hashes = std::iter::once(&old.mesh_blob).chain(old.resources.values());
         for hash in hashes {
             if let Some((_, refs)) = self.blobs.get_mut(hash) {
@@ -168,11 +170,20 @@ impl Store for InMemoryStore {
         self.lock().models.len()
     }
 
-    fn preview(&self, id: &str) -> StoreResult<Option<Vec<u8>>> {
-        Ok(self.lock().previews.get(id).cloned())
+    fn derived(&self, cache: Derived, id: &str) -> StoreResult<Option<Vec<u8>>> {
+        let Ok(id) = ModelId::parse(id) else {
+            return Ok(None);
+        };
+        Ok(self.lock().derived.get(&(cache, id)).cloned())
     }
 
-    fn put_preview(&self, id: &str, content_hash: &str, entry: &[u8]) -> StoreResult<bool> {
+    fn put_derived(
+        &self,
+        cache: Derived,
+        id: &str,
+        content_hash: &str,
+        entry: &[u8],
+    ) -> StoreResult<bool> {
         let mut inner = self.lock();
         let Some((record, _)) = inner.models.get(id) else {
             return Ok(false);
@@ -181,8 +192,22 @@ impl Store for InMemoryStore {
             return Ok(false);
         }
         let id = record.id.clone();
-        inner.previews.insert(id, entry.to_vec());
+        inner.derived.insert((cache, id), entry.to_vec());
         Ok(true)
+    }
+
+    fn all_derived(
+        &self,
+        cache: Derived,
+    ) -> Box<dyn Iterator<Item = StoreResult<(ModelId, Vec<u8>)>> + '_> {
+        let all: Vec<_> = self
+            .lock()
+            .derived
+            .iter()
+            .filter(|((c, _), _)| *c == cache)
+            .map(|((_, id), entry)| Ok((id.clone(), entry.clone())))
+            .collect();
+        Box::new(all.into_iter())
     }
 
     fn state(&self, key: &str) -> StoreResult<Option<Vec<u8>>> {

@@ -53,6 +53,16 @@ fn assemble_upload(
     ))
 }
 
+/// Data made from a model's upload and kept beside it, bound to its content: made again
+/// whenever missing, removed with the model.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
+pub enum Derived {
+    /// What a person sees of it (`crate::preview`).
+    Preview,
+    /// What a partial search picks its candidates by (`crate::descriptor::patch::Packed`).
+    Patches,
+}
+
 /// A stored model as the index needs it at start.
 pub struct Loaded {
     pub record: ModelRecord,
@@ -105,12 +115,24 @@ pub trait Store: Send + Sync {
     fn is_empty(&self) -> bool {
         self.len() == 0
     }
-    /// The cached preview of a model (see `crate::preview`), as `put_preview` stored it.
-    fn preview(&self, id: &str) -> StoreResult<Option<Vec<u8>>>;
-    /// Caches a preview of `id` if the model still holds the upload `content_hash`; a model
-    /// deleted or replaced meanwhile gets none (returns false). Not flushed: a cache lost in
-    /// a crash is made again. The entry goes with the model when it is deleted or replaced.
-    fn put_preview(&self, id: &str, content_hash: &str, entry: &[u8]) -> StoreResult<bool>;
+    /// A model's entry of a derived cache, as [`Store::put_derived`] stored it.
+    fn derived(&self, cache: Derived, id: &str) -> StoreResult<Option<Vec<u8>>>;
+    /// Keeps `entry` in a derived cache for `id` if the model still holds the upload
+    /// `content_hash`; a model deleted or replaced meanwhile gets none (returns false). Not
+    /// flushed: an entry lost in a crash is made again. The entry goes with the model when it
+    /// is deleted or replaced.
+    fn put_derived(
+        &self,
+        cache: Derived,
+        id: &str,
+        content_hash: &str,
+        entry: &[u8],
+    ) -> StoreResult<bool>;
+    /// Every entry of a derived cache, in id order.
+    fn all_derived(
+        &self,
+        cache: Derived,
+    ) -> Box<dyn Iterator<Item = StoreResult<(ModelId, Vec<u8>)>> + '_>;
     /// A small value the service keeps between runs (the progress of a re-extraction).
     fn state(&self, key: &str) -> StoreResult<Option<Vec<u8>>>;
     fn set_state(&self, key: &str, value: &[u8]) -> StoreResult<()>;

@@ -10,7 +10,7 @@ use std::path::Path;
 use sled::transaction::{ConflictableTransactionError, TransactionalTree};
 use sled::Transactional;
 
-use super::{Loaded, StoreError, StoreResult};
+use super::{Derived, Loaded, StoreError, StoreResult};
 use crate::model::{sha256_hex, ModelId, ModelRecord, Upload};
 
 #[path = "../../migrations/mod.rs"]
@@ -33,6 +33,7 @@ pub struct SledStore {
     content: sled::Tree,
     state: sled::Tree,
     previews: sled::Tree,
+    patches: sled::Tree,
 }
 
 fn corrupt(key: &[u8], message: impl ToString) -> StoreError {
@@ -82,6 +83,7 @@ impl SledStore {
             content: db.open_tree("content")?,
             state: db.open_tree("state")?,
             previews: db.open_tree("previews")?,
+            patches: db.open_tree("patches")?,
             db,
         })
     }
@@ -115,6 +117,13 @@ impl SledStore {
             db.flush()?;
         }
         Ok(())
+    }
+
+    fn tree(&self, cache: Derived) -> &sled::Tree {
+        match cache {
+            Derived::Preview => &self.previews,
+            Derived::Patches => &self.patches,
+        }
     }
 
     /// The underlying database (tests write older fixture versions through it).
@@ -162,8 +171,9 @@ fn blob_hashes(record: &ModelRecord) -> impl Iterator<Item = &str> {
 }
 
 /// The trees a write of a whole model changes, in a transaction: models, signatures, blobs,
-/// blob references, content, previews.
+/// blob references, content, previews, patches.
 type ModelTrees = (
+    TransactionalTree,
     TransactionalTree,
     TransactionalTree,
     TransactionalTree,
@@ -177,10 +187,10 @@ fn unlink(
     trees: &ModelTrees,
     old: &ModelRecord,
 ) -> Result<(), ConflictableTransactionError<StoreError>> {
-    let (models, signatures, blobs, refs, content, previews) = trees;
-    models.remove(old.id.as_str().as_bytes())?;
-    signatures.remove(old.id.as_str().as_bytes())?;
-    previews.remove(old.id.as_str().as_bytes())?;
+    let (models, signatures, blobs, refs, content, previews, patches) = trees;
+    for tree in [models, signatures, previews, patches] {
+        tree.remove(old.id.as_str().as_bytes())?;
+    }
     for hash in blob_hashes(old) {
         release_blob(blobs, refs, hash)?;
     }
@@ -214,10 +224,11 @@ impl super::Store for SledStore {
             &self.blob_refs,
             &self.content,
             &self.previews,
+            &self.patches,
         );
         let previous = trees
             .transaction(|view| {
-                let (models, signatures, blobs, refs, content, _) = view;
+                let (models, signatures, blobs, refs, content, _, _) = view;
                 let previous = match models.get(record.id.as_str().as_bytes())? {
                     Some(bytes) => {
                         let old = decode_record(record.id.as_str().as_bytes(), &bytes)
@@ -298,6 +309,7 @@ impl super::Store for SledStore {
             &self.blob_refs,
             &self.content,
             &self.previews,
+            &self.patches,
         );
         let removed = trees
             .transaction(|view| {
@@ -360,13 +372,19 @@ impl super::Store for SledStore {
         self.models.len()
     }
 
-    fn preview(&self, id: &str) -> StoreResult<Option<Vec<u8>>> {
-        Ok(self.previews.get(id)?.map(|v| v.to_vec()))
+    fn derived(&self, cache: Derived, id: &str) -> StoreResult<Option<Vec<u8>>> {
+        Ok(self.tree(cache).get(id)?.map(|v| v.to_vec()))
     }
 
-    fn put_preview(&self, id: &str, content_hash: &str, entry: &[u8]) -> StoreResult<bool> {
-        (&self.models, &self.previews)
-            .transaction(|(models, previews)| {
+    fn put_derived(
+        &self,
+        cache: Derived,
+        id: &str,
+        content_hash: &str,
+        entry: &[u8],
+    ) -> StoreResult<bool> {
+        (&self.models, self.tree(cache))
+            .transaction(|(models, derived)| {
                 let Some(bytes) = models.get(id)? else {
                     return Ok(false);
                 };
@@ -375,10 +393,24 @@ impl super::Store for SledStore {
                 if stored.content_hash != content_hash {
                     return Ok(false);
                 }
-                previews.insert(id.as_bytes(), entry)?;
+                derived.insert(id.as_bytes(), entry)?;
                 Ok(true)
             })
             .map_err(transaction_error)
+    }
+
+    fn all_derived(
+        &self,
+        cache: Derived,
+    ) -> Box<dyn Iterator<Item = StoreResult<(ModelId, Vec<u8>)>> + '_> {
+        Box::new(self.tree(cache).iter().map(|entry| {
+            let (key, value) = entry?;
+            let id = std::str::from_utf8(&key)
+                .ok()
+                .and_then(|id| ModelId::parse(id).ok())
+                .ok_or_else(|| corrupt(&key, "not a model id"))?;
+            Ok((id, value.to_vec()))
+        }))
     }
 
     fn state(&self, key: &str) -> StoreResult<Option<Vec<u8>>> {

@@ -7,7 +7,7 @@ use axum::body::Bytes;
 use axum::http::StatusCode;
 use salient::api::Config;
 use salient::model::{ModelId, ModelRecord, Upload};
-use salient::store::{InMemoryStore, Loaded, Store, StoreError, StoreResult};
+use salient::store::{Derived, InMemoryStore, Loaded, Store, StoreError, StoreResult};
 use serde_json::Value;
 
 use crate::app::{Form, TestApp, TestResponse};
@@ -621,11 +621,23 @@ impl Store for DamagedStore {
     fn len(&self) -> usize {
         self.0.len()
     }
-    fn preview(&self, id: &str) -> StoreResult<Option<Vec<u8>>> {
-        self.0.preview(id)
+    fn derived(&self, cache: Derived, id: &str) -> StoreResult<Option<Vec<u8>>> {
+        self.0.derived(cache, id)
     }
-    fn put_preview(&self, id: &str, content_hash: &str, entry: &[u8]) -> StoreResult<bool> {
-        self.0.put_preview(id, content_hash, entry)
+    fn put_derived(
+        &self,
+        cache: Derived,
+        id: &str,
+        content_hash: &str,
+        entry: &[u8],
+    ) -> StoreResult<bool> {
+        self.0.put_derived(cache, id, content_hash, entry)
+    }
+    fn all_derived(
+        &self,
+        cache: Derived,
+    ) -> Box<dyn Iterator<Item = StoreResult<(ModelId, Vec<u8>)>> + '_> {
+        self.0.all_derived(cache)
     }
     fn state(&self, key: &str) -> StoreResult<Option<Vec<u8>>> {
         self.0.state(key)

@@ -9,7 +9,7 @@ use std::sync::Arc;
 use axum::http::StatusCode;
 use salient::api::Config;
 use salient::signature::{Signature, Staleness, SIGNATURE_FORMAT};
-use salient::store::{SledStore, Store};
+use salient::store::{Derived, SledStore, Store};
 use serde_json::Value;
 
 use crate::app::TestApp;
@@ -87,7 +87,7 @@ fn release_0_1_0_signature_files_read_as_they_were_written() {
 async fn release_0_1_0_store_opens_lists_serves_and_ranks() {
     let dir = tempfile::tempdir().unwrap();
     let store = golden_store(&dir.path().join("store"));
-    assert_eq!(SledStore::stored_version(store.db()).unwrap(), 3);
+    assert_eq!(SledStore::stored_version(store.db()).unwrap(), 4);
     for loaded in store.load_all() {
         let loaded = loaded.unwrap();
         assert_eq!(
@@ -101,7 +101,8 @@ async fn release_0_1_0_store_opens_lists_serves_and_ranks() {
         reindex_on_start: false,
         ..Config::default()
     };
-    let app = TestApp::build(config, Arc::new(store), None);
+    let store = Arc::new(store);
+    let app = TestApp::build(config, store.clone(), None);
     assert_eq!(app.app.stale_count(), 3);
 
     let list = app.get_json("/v1/models?limit=1000").await;
@@ -145,4 +146,14 @@ async fn release_0_1_0_store_opens_lists_serves_and_ranks() {
         }
         assert!(!ranked.is_empty());
     }
+
+    // Its models get the patches partial search picks its candidates by, in the background.
+    let mut pending = app.app.patches_pending();
+    app.app.start_background();
+    pending.wait_for(|p| *p == Some(0)).await.unwrap();
+    let patched: Vec<String> = store
+        .all_derived(Derived::Patches)
+        .map(|entry| entry.unwrap().0.to_string())
+        .collect();
+    assert_eq!(patched, ["horse", "horse-split", "tetra"]);
 }

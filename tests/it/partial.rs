@@ -4,13 +4,14 @@
 
 use axum::http::StatusCode;
 use glam::DVec3;
-use salient::descriptor::patch::{piece, piece_distance, Patches};
+use salient::descriptor::patch::{piece, piece_distance, Layout, Packed, Patches, LEN};
 use salient::mesh::RawMesh;
 use salient::params::Params;
-use salient::partial::{cut, Part, Probe, Target};
+use salient::partial::{cut, stored_patches, Part, Probe, Target};
 use salient::pipeline::compute;
 use salient::rank::{Index, Scope};
 use salient::similarity::{part_in, CostMatrix, Features};
+use salient::store::{Derived, InMemoryStore, Store};
 use serde_json::Value;
 
 use crate::app::TestApp;
@@ -100,7 +101,7 @@ fn a_piece_is_described_alike_however_it_is_moved_and_a_model_holds_its_own_piec
     let params = Params::default();
     let patches = |mesh: &RawMesh| {
         let prepared = salient::mesh::prepare(mesh, &params.mesh).unwrap();
-        Patches::compute(&prepared.positions, &prepared.triangles, 5)
+        Patches::compute(&prepared.positions, &prepared.triangles, 5, Layout::FRAMES)
     };
     let models = collection();
     let star = patches(&models[0].1).nearest(&a);
@@ -108,6 +109,55 @@ fn a_piece_is_described_alike_however_it_is_moved_and_a_model_holds_its_own_piec
         let other = patches(mesh).nearest(&a);
         assert!(star < other, "{id}: {other} vs the star's {star}");
     }
+
+    // So it is among the patches stored for partial search (fewer, a byte a value).
+    let stored = |mesh: &RawMesh| stored_patches(mesh, &params.mesh).unwrap();
+    let packed = Packed::piece(&a);
+    let star = stored(&models[0].1).nearest(&packed);
+    for (id, mesh) in &models[1..] {
+        let other = stored(mesh).nearest(&packed);
+        assert!(star < other, "{id}: {other} vs the star's {star}");
+    }
+}
+
+#[test]
+fn packed_patches_measure_as_the_descriptions_within_their_rounding_and_read_back() {
+    let params = Params::default();
+    let prepared = salient::mesh::prepare(&collection()[0].1, &params.mesh).unwrap();
+    let patches = Patches::compute(&prepared.positions, &prepared.triangles, 5, Layout::STORED);
+    let packed = Packed::of(&patches);
+    assert_eq!(
+        patches.len(),
+        Layout::STORED.centres * Layout::STORED.radii.len()
+    );
+    // Each value rounds by at most half a step: 24 distribution values in 1/255ths, halved,
+    // and 3 spreads in 1/127ths.
+    let rounding = 24.0 / 255.0 / 2.0 + 3.0 / 127.0;
+    let first = &patches.values[..LEN];
+    for part in patches.values.chunks_exact(LEN).step_by(7) {
+        let exact = patches.nearest(part);
+        let rounded = packed.nearest(&Packed::piece(part));
+        assert!(exact == 0.0 && rounded == 0.0, "a patch is its own nearest");
+        let other = Packed::piece(first);
+        let (exact, rounded) = (
+            piece_distance(part, first),
+            Packed::of(&Patches {
+                values: part.to_vec(),
+                frames: Vec::new(),
+            })
+            .nearest(&other),
+        );
+        assert!((exact - rounded).abs() <= rounding, "{exact} vs {rounded}");
+    }
+    let bytes = packed.to_bytes();
+    assert_eq!(bytes.len(), 1 + 64 * LEN);
+    assert_eq!(Packed::from_bytes(&bytes), Some(packed));
+    // Another layout's entry, or a damaged one, is made again.
+    let mut other_layout = bytes.clone();
+    other_layout[0] = 0;
+    assert_eq!(Packed::from_bytes(&other_layout), None);
+    assert_eq!(Packed::from_bytes(&bytes[..bytes.len() - 1]), None);
+    assert_eq!(Packed::from_bytes(&[]), None);
 }
 
 #[test]
@@ -191,7 +241,9 @@ fn a_piece_cut_from_a_model_finds_it_and_the_pruned_ranking_equals_a_full_scan()
     let part = Part::extract(&spike(), &params, scales, &params.similarity).unwrap();
     assert_eq!(part.sizes().count(), scales.len());
 
-    let ranked = index.search_partial(&part, 4, &Scope::default()).unwrap();
+    let ranked = index
+        .search_partial(&part, 4, &Scope::default(), (&[], 0))
+        .unwrap();
     let ids: Vec<&str> = ranked.ranking.hits.iter().map(|h| h.id.as_str()).collect();
     assert_eq!(ids[0], "star", "{ranked:?}");
 
@@ -224,8 +276,70 @@ fn a_piece_cut_from_a_model_finds_it_and_the_pruned_ranking_equals_a_full_scan()
     assert!(ranked.scales.iter().all(|s| scales.contains(s)));
 
     // The top hit alone, with a smaller k, is pruned to it.
-    let top = index.search_partial(&part, 1, &Scope::default()).unwrap();
+    let top = index
+        .search_partial(&part, 1, &Scope::default(), (&[], 0))
+        .unwrap();
     assert_eq!(top.ranking.hits[0].id, "star");
+}
+
+/// `mode=partial`'s candidates: the stored patches' nearest that the part fits, then the
+/// fit's own best among the models without patches, each once; then the fit's ranking.
+#[test]
+fn the_patches_nearest_are_verified_first_then_the_fits_best_of_the_models_without() {
+    let params = Params::default();
+    let mut index = Index::new(params.similarity.clone());
+    for (id, mesh) in collection() {
+        index.insert(id, &compute(&mesh, &params).unwrap()).unwrap();
+    }
+    let scales = &params.similarity.partial.scales;
+    let part = Part::extract(&spike(), &params, scales, &params.similarity).unwrap();
+    let fit = index
+        .search_partial(&part, 4, &Scope::default(), (&[], 0))
+        .unwrap();
+    let order: Vec<&str> = fit.ranking.hits.iter().map(|h| h.id.as_str()).collect();
+    assert_eq!((order.len(), order[0], fit.candidates), (4, "star", 0));
+    let distance = |id: &str| {
+        fit.ranking
+            .hits
+            .iter()
+            .find(|h| h.id == id)
+            .unwrap()
+            .distance
+    };
+
+    // The fit's last two have patches, the tube's the nearest; "lost" is no model.
+    let (third, last) = (order[2], order[3]);
+    let nearest = [(0.1, "lost"), (0.2, last), (0.3, third)];
+    let ranked = index
+        .search_partial(&part, 4, &Scope::default(), (&nearest, 1))
+        .unwrap();
+    let ids: Vec<&str> = ranked.ranking.hits.iter().map(|h| h.id.as_str()).collect();
+    // The patches' nearest model, the fit's best (unpatched), then the rest in the fit's order.
+    assert_eq!(ranked.candidates, 2);
+    assert_eq!(ids, [last, "star", order[1], third]);
+    for hit in &ranked.ranking.hits {
+        assert_eq!(
+            hit.distance,
+            distance(&hit.id),
+            "{}: the fit's distance",
+            hit.id
+        );
+    }
+    assert_eq!(ranked.scales.len(), 4);
+
+    // Every model patched: the fit's best is verified only if the patches choose it.
+    let all: Vec<(f64, &str)> = order
+        .iter()
+        .rev()
+        .enumerate()
+        .map(|(i, &id)| (i as f64, id))
+        .collect();
+    let ranked = index
+        .search_partial(&part, 2, &Scope::default(), (&all, 2))
+        .unwrap();
+    let ids: Vec<&str> = ranked.ranking.hits.iter().map(|h| h.id.as_str()).collect();
+    assert_eq!(ranked.candidates, 2);
+    assert_eq!(ids, [last, third, "star", order[1]]);
 }
 
 #[test]
@@ -302,4 +416,69 @@ async fn a_part_is_searched_over_http() {
     }
     let response = app.get("/v1/models/star/similar?mode=partial").send().await;
     assert_eq!(response.status(), StatusCode::BAD_REQUEST);
+}
+
+/// Every model gets its stored patches in the background, from the start for those stored
+/// before and after each upload; they pick which models a partial search verifies, and go
+/// with their model.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn patches_are_made_in_the_background_and_pick_what_a_partial_search_verifies() {
+    let store = std::sync::Arc::new(InMemoryStore::new());
+    let mut config = salient::api::Config::default();
+    config.params.similarity.partial.verified = 1;
+    let app = TestApp::build(config, store.clone(), None);
+    let models = collection();
+    for (id, mesh) in &models[..3] {
+        let response = app.add(&format!("id={id}"), "model/obj", obj(mesh)).await;
+        assert_eq!(response.status(), StatusCode::CREATED, "{id}");
+    }
+    let search = || {
+        app.post("/v1/search?mode=partial&k=3")
+            .header("content-type", "model/obj")
+            .body(obj(&spike()))
+            .send()
+    };
+    let verified = |body: &Value| -> Vec<String> {
+        body["results"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .filter(|r| r["residual"].is_f64())
+            .map(|r| r["id"].as_str().unwrap().to_string())
+            .collect()
+    };
+    // Before any patches: the fit's best alone is verified.
+    let body = json(search().await).await;
+    assert_eq!(verified(&body), ["star"], "{body}");
+    assert!(store.all_derived(Derived::Patches).next().is_none());
+
+    let mut pending = app.app.patches_pending();
+    app.app.start_background();
+    pending.wait_for(|p| *p == Some(0)).await.unwrap();
+    let made: Vec<String> = store
+        .all_derived(Derived::Patches)
+        .map(|entry| {
+            let (id, bytes) = entry.unwrap();
+            assert!(Packed::from_bytes(&bytes).is_some(), "{id}");
+            id.to_string()
+        })
+        .collect();
+    assert_eq!(made, ["sphere", "star", "tube"]);
+
+    // One added after the start gets its patches too.
+    let (id, mesh) = &models[3];
+    let response = app.add(&format!("id={id}"), "model/obj", obj(mesh)).await;
+    assert_eq!(response.status(), StatusCode::CREATED);
+    pending.wait_for(|p| *p == Some(0)).await.unwrap();
+    assert!(store.derived(Derived::Patches, id).unwrap().is_some());
+
+    // The verified model is the patches' nearest: the star, first by its residual.
+    let body = json(search().await).await;
+    assert_eq!(verified(&body), ["star"], "{body}");
+    assert_eq!(body["results"][0]["id"], "star");
+
+    // A deleted model's patches go with it.
+    let response = app.delete("/v1/models/star").send().await;
+    assert_eq!(response.status(), StatusCode::NO_CONTENT);
+    assert!(store.derived(Derived::Patches, "star").unwrap().is_none());
 }

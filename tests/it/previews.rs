@@ -11,7 +11,7 @@ use salient::api::Config;
 use salient::preview::NO_REGION;
 use salient::rank::Method;
 use salient::render::{region_colour, SURFACE};
-use salient::store::{InMemoryStore, Store};
+use salient::store::{Derived, InMemoryStore, Store};
 use serde_json::Value;
 
 use crate::app::{expect_error, Form, TestApp};
@@ -73,7 +73,7 @@ async fn a_thumbnail_is_cached_in_the_store_and_goes_with_its_model() {
     let app = TestApp::build(Config::default(), store.clone(), None);
     with_models(&app).await;
     assert!(
-        store.preview("star").unwrap().is_none(),
+        store.derived(Derived::Preview, "star").unwrap().is_none(),
         "made on first use"
     );
 
@@ -91,7 +91,7 @@ async fn a_thumbnail_is_cached_in_the_store_and_goes_with_its_model() {
     );
     assert!(shows(&picture, SURFACE));
     let cached = store
-        .preview("star")
+        .derived(Derived::Preview, "star")
         .unwrap()
         .expect("the preview is cached");
 
@@ -105,7 +105,11 @@ async fn a_thumbnail_is_cached_in_the_store_and_goes_with_its_model() {
         .filter(|&i| shows(&picture, region_colour(i)))
         .count();
     assert!(visible >= 3, "{visible} of the 6 region colours visible");
-    assert_eq!(store.preview("star").unwrap().unwrap(), cached, "made once");
+    assert_eq!(
+        store.derived(Derived::Preview, "star").unwrap().unwrap(),
+        cached,
+        "made once"
+    );
 
     // Revalidation by ETag, per variant.
     let etag = coloured.headers()[header::ETAG]
@@ -135,7 +139,7 @@ async fn a_thumbnail_is_cached_in_the_store_and_goes_with_its_model() {
     // Replaced: the old picture is not served under the old tag; deleted: the cache goes.
     let replaced = app.add("id=star", "model/obj", sphere()).await;
     assert_eq!(replaced.status(), StatusCode::OK);
-    assert!(store.preview("star").unwrap().is_none());
+    assert!(store.derived(Derived::Preview, "star").unwrap().is_none());
     let fresh = app
         .get("/v1/models/star/thumbnail.png?size=128&features=true")
         .header("if-none-match", &etag)
@@ -147,7 +151,7 @@ async fn a_thumbnail_is_cached_in_the_store_and_goes_with_its_model() {
         app.delete("/v1/models/star").send().await.status(),
         StatusCode::NO_CONTENT
     );
-    assert!(store.preview("star").unwrap().is_none());
+    assert!(store.derived(Derived::Preview, "star").unwrap().is_none());
 }
 
 /// The GLB's attributes, read back with the `gltf` crate.

@@ -36,7 +36,7 @@ fn a_version_0_store_is_migrated_at_open() {
         assert_eq!(SledStore::stored_version(&db).unwrap(), 0);
     }
     let store = SledStore::open(dir.path()).unwrap();
-    assert_eq!(SledStore::stored_version(store.db()).unwrap(), 3);
+    assert_eq!(SledStore::stored_version(store.db()).unwrap(), 4);
     let names: Vec<_> = store
         .db()
         .tree_names()
@@ -51,6 +51,7 @@ fn a_version_0_store_is_migrated_at_open() {
         "content",
         "state",
         "previews",
+        "patches",
     ] {
         assert!(names.contains(&tree.to_string()), "{names:?}");
     }
@@ -72,7 +73,7 @@ fn a_store_from_a_newer_salient_is_refused() {
     match reopen(dir.path()) {
         Err(StoreError::Incompatible {
             found: 99,
-            supported: 3,
+            supported: 4,
         }) => {}
         other => panic!("expected a refusal, got {:?}", other.map(|_| ())),
     }
