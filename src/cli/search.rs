@@ -32,8 +32,9 @@ pub struct Args {
     #[arg(long)]
     method: Option<Method>,
     /// The query is a piece of a model (cut from it, with an open boundary): rank the models
-    /// that contain a part like it (`salient::partial`). Compares salient features only, so
-    /// `--method` does not apply.
+    /// that contain a part like it (`salient::partial`), as the service does: the models
+    /// nearest it by their patches (made for each search, not cached) verified by
+    /// registration, then the rest by the salient-feature fit. `--method` does not apply.
     #[arg(long, conflicts_with = "method")]
     partial: bool,
     /// With --partial: the part's size in its model, when known (its radius over the model's,
