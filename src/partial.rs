@@ -167,6 +167,14 @@ pub fn stored_patches(raw: &RawMesh, params: &MeshParams) -> Result<Packed> {
     )))
 }
 
+/// Models by the distance of a part to their stored patches ([`Packed::nearest`]), nearest
+/// first, ties by id: the order a partial search takes its candidates in
+/// ([`crate::rank::Index::search_partial`]).
+pub fn nearest_first<S: Ord>(mut models: Vec<(f64, S)>) -> Vec<(f64, S)> {
+    models.sort_by(|a, b| a.0.total_cmp(&b.0).then_with(|| a.1.cmp(&b.1)));
+    models
+}
+
 /// Patches of a target whose frames start a placement. These settings were chosen on CAPOD's
 /// tuning half (`docs/results/partial/`: from 3 starts, 2 refined, 10 rounds, the source in
 /// the top 5 rose 0.47 → 0.59); more starts and rounds help because a patch is cut around

@@ -747,7 +747,7 @@ impl Index {
         part: &Part,
         k: usize,
         scope: &Scope,
-        (nearest, verified): (&[(f64, &str)], usize),
+        (nearest, verified): (&[(f64, impl AsRef<str>)], usize),
     ) -> io::Result<PartRanking> {
         let params = &self.params;
         let admits = self.admits(scope);
@@ -766,10 +766,10 @@ impl Index {
         };
         // The patches' nearest that the part fits, then the fit's best of the models without
         // patches: each once, verified; then the rest of the fit's ranking.
-        let patched: HashSet<&str> = nearest.iter().map(|&(_, id)| id).collect();
+        let patched: HashSet<&str> = nearest.iter().map(|(_, id)| id.as_ref()).collect();
         let mut chosen: Vec<(&str, Fit)> = nearest
             .iter()
-            .filter_map(|&(_, id)| Some((id, fit_of(id)?)))
+            .filter_map(|(_, id)| Some((id.as_ref(), fit_of(id.as_ref())?)))
             .take(verified)
             .collect();
         let unpatched = fit.hits.iter().take(verified).map(|h| h.id.as_str());

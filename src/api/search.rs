@@ -16,7 +16,7 @@ use crate::mesh::load_bytes;
 use crate::model::ModelId;
 use crate::model::Upload;
 use crate::params::SimilarityParams;
-use crate::partial::{by_residual, Part, Probe, Target};
+use crate::partial::{by_residual, nearest_first, Part, Probe, Target};
 use crate::pipeline::Extent;
 use crate::rank::{
     contributions, distance, hybrid_parts, Hit, Method, PartRanking, Ranking, Scope, PARTS,
@@ -313,8 +313,6 @@ async fn search_part(
                 without: None,
                 keep: tag.is_some().then_some(&tagged as _),
             };
-            let nearest: Vec<(f64, &str)> =
-                nearest.iter().map(|(d, id)| (*d, id.as_str())).collect();
             let PartRanking {
                 ranking,
                 scales,
@@ -406,8 +404,7 @@ fn nearest_patches(store: &dyn Store, part: &PackedPiece) -> StoreResult<Vec<(f6
             nearest.push((packed.nearest(part), id.to_string()));
         }
     }
-    nearest.sort_by(|a, b| a.0.total_cmp(&b.0).then_with(|| a.1.cmp(&b.1)));
-    Ok(nearest)
+    Ok(nearest_first(nearest))
 }
 
 impl App {

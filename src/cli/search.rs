@@ -12,7 +12,7 @@ use serde::Serialize;
 use salient::collection::{find_meshes, SignatureCache, Source};
 use salient::descriptor::patch::Packed;
 use salient::mesh::load_path;
-use salient::partial::{by_residual, stored_patches, Part, Probe, Target};
+use salient::partial::{by_residual, nearest_first, stored_patches, Part, Probe, Target};
 use salient::rank::{Index, Method, Scope};
 use salient::signature::Signature;
 use salient::Limits;
@@ -193,7 +193,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         Query::Part(part, probe) => {
             // The patches of every model, made for this search (not cached: ~30 ms of a
             // core a model), nearest the part first, as the service keeps them.
-            let mut nearest: Vec<(f64, String)> = match probe {
+            let nearest: Vec<(f64, String)> = match probe {
                 Some(probe) => {
                     let piece = Packed::piece(probe.description());
                     indexed
@@ -207,9 +207,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 }
                 None => Vec::new(),
             };
-            nearest.sort_by(|a, b| a.0.total_cmp(&b.0).then_with(|| a.1.cmp(&b.1)));
-            let nearest: Vec<(f64, &str)> =
-                nearest.iter().map(|(d, id)| (*d, id.as_str())).collect();
+            let nearest = nearest_first(nearest);
             let verified = params.similarity.partial.verified;
             let ranked = index
                 .search_partial(part, args.k, &Scope::default(), (&nearest, verified))

@@ -28,7 +28,7 @@ use crate::descriptor::patch::{Layout, Packed};
 use crate::mesh::prepare::normalisation;
 use crate::mesh::{load_path, RawMesh};
 use crate::params::{Limits, Params, PartialParams};
-use crate::partial::{by_residual, cut, stored_patches, Part, Probe, Target};
+use crate::partial::{by_residual, cut, nearest_first, stored_patches, Part, Probe, Target};
 use crate::pipeline::compute;
 use crate::rank::{Hit, Index, Method, PartRanking, Scope};
 use crate::salient::area as triangle_area;
@@ -226,25 +226,31 @@ pub fn run(
         let verified_count = params.similarity.partial.verified;
         // The stored patches of every model, nearest the part first (a library whose patches
         // are all made); none for a part without area.
-        let mut by_patch: Vec<(f64, &str)> = probe
-            .as_ref()
-            .map(|p| {
-                let part = Packed::piece(p.description());
-                collection
-                    .models
-                    .iter()
-                    .zip(&targets)
-                    .map(|(m, (_, packed))| (packed.nearest(&part), m.id.as_str()))
-                    .collect()
-            })
-            .unwrap_or_default();
-        by_patch.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(b.1)));
+        let by_patch: Vec<(f64, &str)> = nearest_first(
+            probe
+                .as_ref()
+                .map(|p| {
+                    let part = Packed::piece(p.description());
+                    collection
+                        .models
+                        .iter()
+                        .zip(&targets)
+                        .map(|(m, (_, packed))| (packed.nearest(&part), m.id.as_str()))
+                        .collect()
+                })
+                .unwrap_or_default(),
+        );
         // What is served, and the same with the fit's own candidates (no model patched).
         let served = index
             .search_partial(part, DEPTH, &Scope::default(), (&by_patch, verified_count))
             .map_err(io)?;
         let fit = index
-            .search_partial(part, DEPTH, &Scope::default(), (&[], verified_count))
+            .search_partial(
+                part,
+                DEPTH,
+                &Scope::default(),
+                (&[] as &[(f64, &str)], verified_count),
+            )
             .map_err(io)?;
         let whole = index.search(whole, DEPTH, Method::default()).map_err(io)?;
         // Each candidate of either ranking registered once.

@@ -18,6 +18,9 @@ use crate::app::TestApp;
 use crate::server::obj;
 use crate::shapes;
 
+/// A library whose patches are not made yet.
+const NO_PATCHES: &[(f64, &str)] = &[];
+
 /// The collection: a star with five spikes, and shapes without them.
 fn collection() -> Vec<(&'static str, RawMesh)> {
     vec![
@@ -242,7 +245,7 @@ fn a_piece_cut_from_a_model_finds_it_and_the_pruned_ranking_equals_a_full_scan()
     assert_eq!(part.sizes().count(), scales.len());
 
     let ranked = index
-        .search_partial(&part, 4, &Scope::default(), (&[], 0))
+        .search_partial(&part, 4, &Scope::default(), (NO_PATCHES, 0))
         .unwrap();
     let ids: Vec<&str> = ranked.ranking.hits.iter().map(|h| h.id.as_str()).collect();
     assert_eq!(ids[0], "star", "{ranked:?}");
@@ -277,7 +280,7 @@ fn a_piece_cut_from_a_model_finds_it_and_the_pruned_ranking_equals_a_full_scan()
 
     // The top hit alone, with a smaller k, is pruned to it.
     let top = index
-        .search_partial(&part, 1, &Scope::default(), (&[], 0))
+        .search_partial(&part, 1, &Scope::default(), (NO_PATCHES, 0))
         .unwrap();
     assert_eq!(top.ranking.hits[0].id, "star");
 }
@@ -294,7 +297,7 @@ fn the_patches_nearest_are_verified_first_then_the_fits_best_of_the_models_witho
     let scales = &params.similarity.partial.scales;
     let part = Part::extract(&spike(), &params, scales, &params.similarity).unwrap();
     let fit = index
-        .search_partial(&part, 4, &Scope::default(), (&[], 0))
+        .search_partial(&part, 4, &Scope::default(), (NO_PATCHES, 0))
         .unwrap();
     let order: Vec<&str> = fit.ranking.hits.iter().map(|h| h.id.as_str()).collect();
     assert_eq!((order.len(), order[0], fit.candidates), (4, "star", 0));
