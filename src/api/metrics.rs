@@ -25,6 +25,7 @@ pub struct Metrics {
     pub models: Gauge,
     pub extraction_in_flight: Gauge,
     pub rankings_waiting: Gauge,
+    pub patches_pending: Gauge,
 }
 
 impl Default for Metrics {
@@ -35,6 +36,7 @@ impl Default for Metrics {
         let models = Gauge::default();
         let extraction_in_flight = Gauge::default();
         let rankings_waiting = Gauge::default();
+        let patches_pending = Gauge::default();
         let mut registry = Registry::with_prefix("salient");
         registry.register(
             "http_requests",
@@ -62,6 +64,11 @@ impl Default for Metrics {
             "Rankings waiting for their turn (config rankings)",
             rankings_waiting.clone(),
         );
+        registry.register(
+            "patches_pending",
+            "Models whose patch descriptors (partial search) are still to be made",
+            patches_pending.clone(),
+        );
         Self {
             registry,
             requests,
@@ -70,6 +77,7 @@ impl Default for Metrics {
             models,
             extraction_in_flight,
             rankings_waiting,
+            patches_pending,
         }
     }
 }

@@ -210,6 +210,7 @@ impl App {
         let rankers = rankers::Rankers::new(config.rankings, metrics.rankings_waiting.clone())
             .map_err(|e| StartError::Threads(e.to_string()))?;
         let reindex = reindex::Reindexer::load(store.as_ref())?;
+        let patcher = patches::Patcher::new(metrics.patches_pending.clone());
         Ok(Self {
             config,
             store,
@@ -226,7 +227,7 @@ impl App {
             ranking_hook: None,
             verifier: duplicates::Verifier::default(),
             duplicate_gate: tokio::sync::Mutex::new(()),
-            patcher: patches::Patcher::default(),
+            patcher,
         })
     }
 

@@ -9,6 +9,7 @@
 use std::collections::{BTreeSet, HashSet};
 use std::sync::{Arc, Mutex};
 
+use prometheus_client::metrics::gauge::Gauge;
 use tokio::sync::{watch, Notify};
 
 use super::App;
@@ -20,12 +21,13 @@ use crate::partial::stored_patches;
 use crate::store::Derived;
 
 /// The models whose patches are to be made.
-#[derive(Default)]
 pub struct Patcher {
     queue: Mutex<Queue>,
     wake: Notify,
     /// Models whose patches are to be made or being made; `None` until the start's count.
     pending: watch::Sender<Option<usize>>,
+    /// The same, for `/metrics`.
+    gauge: Gauge,
 }
 
 #[derive(Default)]
@@ -35,6 +37,15 @@ struct Queue {
 }
 
 impl Patcher {
+    pub fn new(gauge: Gauge) -> Self {
+        Self {
+            queue: Mutex::default(),
+            wake: Notify::new(),
+            pending: watch::Sender::new(None),
+            gauge,
+        }
+    }
+
     /// A model was stored or replaced: its patches are to be made.
     pub fn stored(&self, id: ModelId) {
         self.change(|queue| {
@@ -56,10 +67,20 @@ impl Patcher {
             let changed = p.is_some() && *p != Some(pending);
             if changed {
                 *p = Some(pending);
+                self.gauge.set(pending as i64);
             }
             changed
         });
         out
+    }
+
+    /// The start's count: every model without patches is pending.
+    fn counted(&self, lacking: impl IntoIterator<Item = ModelId>) {
+        let mut queue = self.queue.lock().expect("never poisoned");
+        queue.lacking.extend(lacking);
+        let pending = queue.lacking.len() + usize::from(queue.working);
+        self.pending.send_replace(Some(pending));
+        self.gauge.set(pending as i64);
     }
 }
 
@@ -90,15 +111,7 @@ async fn run(app: Arc<App>) {
     };
     let patcher = &app.patcher;
     let ids: Vec<ModelId> = app.catalog.snapshot().records.keys().cloned().collect();
-    {
-        let mut queue = patcher.queue.lock().expect("never poisoned");
-        queue
-            .lacking
-            .extend(ids.into_iter().filter(|id| !made.contains(id)));
-        patcher
-            .pending
-            .send_replace(Some(queue.lacking.len() + usize::from(queue.working)));
-    }
+    patcher.counted(ids.into_iter().filter(|id| !made.contains(id)));
     loop {
         let next = patcher.change(|queue| {
             let next = queue.lacking.pop_first();

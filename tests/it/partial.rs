@@ -474,6 +474,8 @@ async fn patches_are_made_in_the_background_and_pick_what_a_partial_search_verif
     assert_eq!(response.status(), StatusCode::CREATED);
     pending.wait_for(|p| *p == Some(0)).await.unwrap();
     assert!(store.derived(Derived::Patches, id).unwrap().is_some());
+    let metrics = app.get("/metrics").send().await.text();
+    assert!(metrics.contains("salient_patches_pending 0"), "{metrics}");
 
     // The verified model is the patches' nearest: the star, first by its residual.
     let body = json(search().await).await;
