@@ -779,6 +779,9 @@ impl Index {
                 .filter_map(|id| Some((id, fit_of(id)?))),
         );
         let candidates = chosen.len();
+        // Fits the cascade did not compute: the patches' choices outside its ranking.
+        let ranked: HashSet<&str> = fit.hits.iter().map(|h| h.id.as_str()).collect();
+        let fitted_here = chosen.iter().filter(|(id, _)| !ranked.contains(id)).count();
         let taken: HashSet<&str> = chosen.iter().map(|&(id, _)| id).collect();
         let rest: Vec<(&str, Fit)> = fit
             .hits
@@ -797,7 +800,7 @@ impl Index {
                         distance: f.distance,
                     })
                     .collect(),
-                evaluated: fit.evaluated + candidates,
+                evaluated: fit.evaluated + fitted_here,
                 pruned: fit.pruned,
             },
             candidates,

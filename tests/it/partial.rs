@@ -329,6 +329,10 @@ fn the_patches_nearest_are_verified_first_then_the_fits_best_of_the_models_witho
         );
     }
     assert_eq!(ranked.scales.len(), 4);
+    assert_eq!(
+        ranked.ranking.evaluated, fit.ranking.evaluated,
+        "no fit outside the fit's 4"
+    );
 
     // Every model patched: the fit's best is verified only if the patches choose it.
     let all: Vec<(f64, &str)> = order
@@ -343,6 +347,14 @@ fn the_patches_nearest_are_verified_first_then_the_fits_best_of_the_models_witho
     let ids: Vec<&str> = ranked.ranking.hits.iter().map(|h| h.id.as_str()).collect();
     assert_eq!(ranked.candidates, 2);
     assert_eq!(ids, [last, third, "star", order[1]]);
+    let top2 = index
+        .search_partial(&part, 2, &Scope::default(), (NO_PATCHES, 2))
+        .unwrap();
+    assert_eq!(
+        ranked.ranking.evaluated,
+        top2.ranking.evaluated + 2,
+        "the patches' two are fitted besides the fit's own"
+    );
 }
 
 #[test]
