@@ -535,6 +535,12 @@ pub struct DuplicateParams {
     /// vertices on the surface, so this holds however coarse the copy, while a morph of one
     /// mesh (the same faces, some vertices moved) comes within the limits above.
     pub vertices: f64,
+    /// A simplification may delete small connected pieces whole (an edge collapse takes an
+    /// isolated triangle away: CAPOD's trees lose leaves). For a copy all of whose vertices
+    /// lie within `vertices` of the other surface, the finer mesh's samples on small pieces
+    /// beyond the largest distance are left out of the limits above, when they are at most
+    /// this share of its surface.
+    pub deleted: f64,
     /// `identical_geometry` when the welded meshes have the same counts and every vertex lies
     /// within this many RMS radii of the other surface, unrotated.
     pub geometry: f64,
@@ -552,8 +558,21 @@ impl Default for DuplicateParams {
             largest: 0.08,
             largest_per_spacing: 1.0,
             vertices: 0.015,
+            deleted: 0.06,
             geometry: 1e-4,
         }
+    }
+}
+
+impl DuplicateParams {
+    /// The surfaces' mean and largest distance allowed between two meshes, the coarser of
+    /// triangle size `spacing` (RMS radii).
+    pub fn surface_limits(&self, spacing: f64) -> (f64, f64) {
+        (
+            self.mean
+                .max((self.mean_per_spacing * spacing).min(self.mean_at_most)),
+            self.largest.max(self.largest_per_spacing * spacing),
+        )
     }
 }
 

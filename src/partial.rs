@@ -306,30 +306,18 @@ pub fn cut(raw: &RawMesh, centre: DVec3, radius: f64) -> Option<RawMesh> {
         })
         .copied()
         .collect();
-    // Components by shared vertices: union–find over the triangles' corners.
-    let mut parent: Vec<u32> = (0..raw.positions.len() as u32).collect();
-    fn root(parent: &mut [u32], mut x: u32) -> u32 {
-        while parent[x as usize] != x {
-            parent[x as usize] = parent[parent[x as usize] as usize];
-            x = parent[x as usize];
-        }
-        x
-    }
-    for t in &inside {
-        for k in 1..3 {
-            let (a, b) = (root(&mut parent, t[0]), root(&mut parent, t[k]));
-            parent[a.max(b) as usize] = a.min(b);
-        }
-    }
+    let pieces = crate::mesh::topology::pieces(raw.positions.len(), &inside);
     let mut area = std::collections::BTreeMap::<u32, f64>::new();
-    for t in &inside {
+    for (t, &piece) in inside.iter().zip(&pieces) {
         let [a, b, c] = corners(t);
-        *area.entry(root(&mut parent, t[0])).or_default() += (b - a).cross(c - a).length();
+        *area.entry(piece).or_default() += (b - a).cross(c - a).length();
     }
     let (&largest, _) = area.iter().max_by(|a, b| a.1.total_cmp(b.1))?;
     let kept: Vec<[u32; 3]> = inside
         .into_iter()
-        .filter(|t| root(&mut parent, t[0]) == largest)
+        .zip(pieces)
+        .filter(|&(_, piece)| piece == largest)
+        .map(|(t, _)| t)
         .collect();
     let (positions, triangles) = crate::mesh::weld::compact(&raw.positions, &kept);
     Some(RawMesh {

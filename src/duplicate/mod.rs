@@ -20,7 +20,7 @@ use std::str::FromStr;
 
 use serde::{Deserialize, Serialize};
 
-pub use shape::{Alignment, Deviation, Shape};
+pub use shape::{Alignment, Deviation, Shape, Spread};
 
 use crate::params::DuplicateParams;
 
@@ -97,7 +97,7 @@ impl Verdict {
 pub fn verify(a: &Shape, b: &Shape, params: &DuplicateParams) -> Option<Verdict> {
     judge(
         a.geometry_deviation(b, params.geometry),
-        |surfaces_pass| a.align(b, surfaces_pass),
+        |largest, surfaces_pass| a.align(b, largest, surfaces_pass),
         a.coarser(b),
         params,
     )
@@ -105,12 +105,12 @@ pub fn verify(a: &Shape, b: &Shape, params: &DuplicateParams) -> Option<Verdict>
 
 /// The verdict on a geometry deviation within `params.geometry` ([`Shape::geometry_deviation`];
 /// `None` when beyond) and, when that does not decide, an alignment ([`Shape::align`], the
-/// costly part, made only then and told which surface statistics pass), `spacing` the coarser
-/// mesh's triangle size ([`Shape::coarser`]). The score is 1 less the largest share of its
-/// limit a statistic used.
+/// costly part, made only then and told the largest distance allowed and which surface
+/// statistics pass), `spacing` the coarser mesh's triangle size ([`Shape::coarser`]). The
+/// score is 1 less the largest share of its limit a statistic used.
 pub fn judge(
     deviation: Option<f64>,
-    alignment: impl FnOnce(&dyn Fn(&Deviation) -> bool) -> Alignment,
+    alignment: impl FnOnce(f64, &dyn Fn(&Deviation) -> bool) -> Alignment,
     spacing: f64,
     params: &DuplicateParams,
 ) -> Option<Verdict> {
@@ -120,11 +120,19 @@ pub fn judge(
             score: 1.0 - d / params.geometry,
         });
     }
-    let mean = params
-        .mean
-        .max((params.mean_per_spacing * spacing).min(params.mean_at_most));
-    let largest = params.largest.max(params.largest_per_spacing * spacing);
-    let surfaces = |d: &Deviation| (d.surfaces.mean / mean).max(d.surfaces.max / largest);
+    let (mean, largest) = params.surface_limits(spacing);
+    let within = |s: &Spread| (s.mean / mean).max(s.max / largest);
+    // A simplification may delete small pieces whole (a tree's leaves): forgiven when they
+    // are few, and only for a copy whose every vertex lies on the other surface — two designs
+    // that differ by a small part (CAPOD's guitars m109 and m119) have vertices off it.
+    let forgivable = |d: &Deviation| d.deleted <= params.deleted;
+    let surfaces = |d: &Deviation| {
+        if forgivable(d) && d.vertices.max <= params.vertices {
+            within(&d.kept)
+        } else {
+            within(&d.surfaces)
+        }
+    };
     let verdict = |evidence, d: Deviation| {
         let used = surfaces(&d).max(d.vertices.p90 / params.vertices);
         (used <= 1.0).then_some(Verdict {
@@ -132,7 +140,9 @@ pub fn judge(
             score: 1.0 - used,
         })
     };
-    let Alignment { rotated, mirrored } = alignment(&|d| surfaces(d) <= 1.0);
+    let Alignment { rotated, mirrored } = alignment(largest, &|d| {
+        within(&d.surfaces) <= 1.0 || (forgivable(d) && within(&d.kept) <= 1.0)
+    });
     verdict(Evidence::SameShape, rotated).or_else(|| verdict(Evidence::Mirrored, mirrored))
 }
 

@@ -3,9 +3,10 @@
 //! with "same shape"), so both meshes go to a canonical frame — area centroid at the origin,
 //! unit RMS radius, principal axes — and are aligned over the 48 signed permutations of those
 //! axes (second moments fix neither the axes' signs nor, when two are near-equal, their
-//! order, which remeshing can swap), the best starts refined by ICP. What is left are the
-//! distances from each surface's samples to the other surface, in RMS radii; their mean and
-//! largest decide (`crate::duplicate::judge`).
+//! order, which remeshing can swap, nor then the axes in their plane at all: turns about the
+//! third are tried too), the best starts refined by ICP. What is
+//! left are the distances from each surface's samples to the other surface, in RMS radii;
+//! their mean and largest decide (`crate::duplicate::judge`).
 //!
 //! Distances and ICP come from [`crate::register`]. Types are glam's as parry re-exports them
 //! (`glamx`), f32 as parry's are.
@@ -26,6 +27,18 @@ const COARSE: usize = 128;
 /// Samples ICP fits on, and its rounds.
 const FIT: usize = 256;
 const ROUNDS: usize = 10;
+/// Rounds of the vertex fit ([`Shape::vertex_fit`]): ICP converges slowly along a surface,
+/// and ten rounds left a simplified tree's vertices up to 0.05 RMS radii off its source.
+const VERTEX_ROUNDS: usize = 30;
+/// Two second moments within this ratio leave the principal axes in their plane arbitrary
+/// (the trees of CAPOD: within 1 %), so starts turned about the third axis are tried too.
+const NEAR_EQUAL: f64 = 1.2;
+/// Those turns, in degrees: with the signed permutations' quarter turns, every 15°.
+const TURNS: [f32; 5] = [15.0, 30.0, 45.0, 60.0, 75.0];
+/// A connected piece of a mesh with less than this share of its area is small: a
+/// simplification may delete it whole (an edge collapse takes an isolated triangle, a tree's
+/// leaf, away), which the check forgives ([`Deviation::kept`]).
+const SMALL_PIECE: f64 = 0.01;
 /// Starts of each handedness refined by ICP.
 const REFINED: usize = 2;
 /// Distances above this many RMS radii count as this much while choosing starts, so that a
@@ -38,6 +51,10 @@ pub struct Shape {
     surface: Surface,
     /// Area-uniform samples of the surface, canonical frame; the same for the same mesh.
     samples: Vec<Vec3>,
+    /// Whether each sample lies on a small piece of the mesh ([`SMALL_PIECE`]).
+    on_small_piece: Vec<bool>,
+    /// The canonical axes about which the other two moments are near-equal ([`NEAR_EQUAL`]).
+    spins: Vec<usize>,
     /// The principal axes as rows: `canonical = axes · (p − centroid) / radius`.
     axes: Mat3,
     /// The typical size of a triangle, `√(area / triangles)`, in RMS radii: how far a
@@ -59,6 +76,12 @@ pub struct Deviation {
     /// larger of the two directions.
     #[serde(flatten)]
     pub surfaces: Spread,
+    /// The same leaving out the samples of the finer mesh (the one with more vertices) that
+    /// lie on its small pieces farther than the largest distance allowed from the coarser:
+    /// the pieces a simplification deleted.
+    pub kept: Spread,
+    /// The share of the finer mesh's samples left out of `kept`.
+    pub deleted: f64,
     /// The coarser mesh's vertices' distances from the finer surface
     /// ([`Shape::vertex_fit`]).
     pub vertices: Spread,
@@ -105,6 +128,8 @@ impl Spread {
 impl Deviation {
     const NONE: Deviation = Deviation {
         surfaces: Spread::NONE,
+        kept: Spread::NONE,
+        deleted: 1.0,
         vertices: Spread::NONE,
     };
 }
@@ -131,12 +156,23 @@ impl Shape {
             .iter()
             .map(|&p| (axes * ((p - centroid) / radius)).as_vec3())
             .collect();
-        let samples = sample(&canonical, &triangles, SAMPLES);
+        let (samples, sampled): (Vec<Vec3>, Vec<usize>) =
+            sample(&canonical, &triangles, SAMPLES).into_iter().unzip();
+        let on_small_piece = small_pieces(&canonical, &triangles);
+        let on_small_piece = sampled.iter().map(|&t| on_small_piece[t]).collect();
+        let [first, second, third] = eigen.eigenvalues.to_array();
+        let spins = [(first / second, 2), (second / third, 0)]
+            .into_iter()
+            .filter(|&(ratio, _)| ratio < NEAR_EQUAL)
+            .map(|(_, axis)| axis)
+            .collect();
         let spacing = (area / (radius * radius) / triangles.len() as f64).sqrt();
         let surface = Surface::new(canonical, triangles)?;
         Ok(Self {
             surface,
             samples,
+            on_small_piece,
+            spins,
             axes: axes.as_mat3(),
             spacing,
         })
@@ -172,13 +208,21 @@ impl Shape {
         Some(largest(self, other, to_other)?.max(largest(other, self, to_other.transpose())?))
     }
 
-    /// Aligns `self` onto `other` over the 48 signed axis permutations, refines the best
-    /// starts of each handedness by ICP, and measures what is left: the surfaces' distances,
-    /// and the vertices' ([`Shape::vertex_fit`], as costly again) only where `surfaces_pass`
+    /// Aligns `self` onto `other` from the starts ([`Shape::starts`]), refines the best of
+    /// each handedness by ICP, and measures what is left: the surfaces' distances (leaving
+    /// out, for `kept`, small pieces of the finer mesh beyond `largest` of the coarser), and
+    /// the vertices' ([`Shape::vertex_fit`], as costly again) only where `surfaces_pass`
     /// (infinite elsewhere).
-    pub fn align(&self, other: &Shape, surfaces_pass: impl Fn(&Deviation) -> bool) -> Alignment {
+    pub fn align(
+        &self,
+        other: &Shape,
+        largest: f64,
+        surfaces_pass: impl Fn(&Deviation) -> bool,
+    ) -> Alignment {
         let coarse = &self.samples[..COARSE.min(self.samples.len())];
-        let mut starts: Vec<(f32, Mat3)> = signed_permutations()
+        let mut starts: Vec<(f32, Mat3)> = self
+            .starts(other)
+            .into_iter()
             .map(|s| {
                 (
                     other
@@ -194,13 +238,12 @@ impl Shape {
                 .iter()
                 .filter(|(_, s)| (s.determinant() > 0.0) == proper)
                 .take(REFINED)
-                .map(|&(_, s)| self.refined(other, s))
-                .min_by(|a, b| a.0.mean.total_cmp(&b.0.mean))
-                .map_or(Deviation::NONE, |(surfaces, motion)| {
-                    let mut deviation = Deviation {
-                        surfaces,
-                        vertices: Spread::NONE,
-                    };
+                .map(|&(_, s)| {
+                    let motion = self.refined(other, s);
+                    (self.deviation(other, motion, largest as f32), motion)
+                })
+                .min_by(|a, b| a.0.surfaces.mean.total_cmp(&b.0.surfaces.mean))
+                .map_or(Deviation::NONE, |(mut deviation, motion)| {
                     if surfaces_pass(&deviation) {
                         deviation.vertices = self.vertex_fit(other, motion);
                     }
@@ -213,41 +256,104 @@ impl Shape {
         }
     }
 
-    /// ICP from the start `s`: rigid motions of `s · x` onto `other`; then the surfaces'
-    /// distances both ways, and the motion.
-    fn refined(&self, other: &Shape, s: Mat3) -> (Spread, Motion) {
-        let fit: Vec<Vec3> = self.samples[..FIT.min(self.samples.len())]
-            .iter()
-            .map(|&x| s * x)
-            .collect();
-        let icp = other.surface.icp(&fit, ROUNDS, false);
-        let motion = Motion {
-            rotation: icp.rotation * s,
-            ..icp
+    /// The rotations (and reflections) of `self`'s canonical frame onto `other`'s to start
+    /// from: the 48 signed permutations of the axes, and each turned about an axis of either
+    /// frame whose plane's moments are near-equal ([`NEAR_EQUAL`]).
+    fn starts(&self, other: &Shape) -> Vec<Mat3> {
+        let turns = |spins: &[usize]| -> Vec<Mat3> {
+            spins
+                .iter()
+                .flat_map(|&axis| {
+                    TURNS.map(|degrees| {
+                        Mat3::from_axis_angle(Vec3::AXES[axis], degrees.to_radians())
+                    })
+                })
+                .collect()
         };
-        let back = motion.inverse();
-        let distances = |from: &Shape, to: &Shape, motion: Motion| {
-            Spread::of(
-                from.samples
-                    .iter()
-                    .map(|&p| to.surface.distance(motion.apply(p)))
-                    .collect(),
-            )
-        };
-        (
-            distances(self, other, motion).larger(distances(other, self, back)),
-            motion,
-        )
+        let (before, after) = (turns(&self.spins), turns(&other.spins));
+        signed_permutations()
+            .flat_map(|s| {
+                std::iter::once(s)
+                    .chain(before.iter().map(move |&t| s * t))
+                    .chain(after.iter().map(move |&t| t * s))
+            })
+            .collect()
     }
 
-    /// The coarser mesh's vertices' distances from the finer surface once fitted onto it by
-    /// ICP with a uniform scale, from the motion `onto` of `self` onto `other`. A remeshing keeps its vertices on the surface it came from (an edge collapse
+    /// ICP from the start `s` (`self`'s frame onto `other`'s): the mesh with fewer vertices —
+    /// a simplification, whose surface lies on its source's — is moved onto the other's
+    /// surface, with a uniform scale since each frame's RMS radius is measured on its own faces
+    /// (which a simplification pulls in, and its deleted pieces shrink). The motion of `self`
+    /// onto `other`.
+    fn refined(&self, other: &Shape, s: Mat3) -> Motion {
+        let onto = |from: &Shape, to: &Shape, s: Mat3| {
+            let fit: Vec<Vec3> = from.samples[..FIT.min(from.samples.len())]
+                .iter()
+                .map(|&x| s * x)
+                .collect();
+            let icp = to.surface.icp(&fit, ROUNDS, true);
+            Motion {
+                rotation: icp.rotation * s,
+                ..icp
+            }
+        };
+        if self.vertices() <= other.vertices() {
+            onto(self, other, s)
+        } else {
+            onto(other, self, s.transpose()).inverse()
+        }
+    }
+
+    /// The surfaces' distances both ways once `self` is moved onto `other` by `motion`, and
+    /// without the finer mesh's small pieces farther than `largest` ([`Deviation::kept`]).
+    fn deviation(&self, other: &Shape, motion: Motion, largest: f32) -> Deviation {
+        let distances = |from: &Shape, to: &Shape, motion: Motion| -> Vec<f32> {
+            from.samples
+                .iter()
+                .map(|&p| to.surface.distance(motion.apply(p)))
+                .collect()
+        };
+        let (forth, back) = (
+            distances(self, other, motion),
+            distances(other, self, motion.inverse()),
+        );
+        let self_finer = self.vertices() > other.vertices();
+        let (fine, finer) = if self_finer {
+            (&forth, self)
+        } else {
+            (&back, other)
+        };
+        let kept: Vec<f32> = fine
+            .iter()
+            .zip(&finer.on_small_piece)
+            .filter(|&(&d, &small)| !(small && d > largest))
+            .map(|(&d, _)| d)
+            .collect();
+        let deleted = 1.0 - kept.len() as f64 / fine.len() as f64;
+        // A mesh all of small pieces, all far, keeps nothing.
+        let kept = if kept.is_empty() {
+            Spread::NONE
+        } else {
+            Spread::of(kept)
+        };
+        let (forth, back) = (Spread::of(forth), Spread::of(back));
+        let coarse = if self_finer { back } else { forth };
+        Deviation {
+            surfaces: forth.larger(back),
+            kept: coarse.larger(kept),
+            deleted,
+            vertices: Spread::NONE,
+        }
+    }
+
+    /// The coarser mesh's (fewer vertices) vertices' distances from the finer surface once
+    /// fitted onto it by ICP with a uniform scale, from the motion `onto` of `self` onto
+    /// `other`. A remeshing keeps its vertices on the surface it came from (an edge collapse
     /// keeps a subset of them, a remesher projects onto it) while its faces cut chords, so
     /// these stay near 0 for a remeshed copy however coarse, and a morph or another pose
-    /// moves them. The scale is fitted because each canonical frame's RMS radius is measured
-    /// on its own faces, which a coarse remeshing pulls inwards.
+    /// moves them.
     fn vertex_fit(&self, other: &Shape, onto: Motion) -> Spread {
-        let (coarse, fine, start) = if self.spacing >= other.spacing {
+        let (coarse, fine, start) = if self.vertices() <= other.vertices() {
             (self, other, onto)
         } else {
             (other, self, onto.inverse())
@@ -258,7 +364,7 @@ impl Shape {
             .step_by(all.len().div_ceil(SAMPLES))
             .map(|&p| start.apply(p))
             .collect();
-        let fit = fine.surface.icp(&points, ROUNDS, true);
+        let fit = fine.surface.icp(&points, VERTEX_ROUNDS, true);
         Spread::of(
             points
                 .iter()
@@ -266,6 +372,28 @@ impl Shape {
                 .collect(),
         )
     }
+}
+
+/// Whether each triangle lies on a small connected piece of the mesh ([`SMALL_PIECE`]).
+fn small_pieces(positions: &[Vec3], triangles: &[[u32; 3]]) -> Vec<bool> {
+    let pieces = crate::mesh::topology::pieces(positions.len(), triangles);
+    let areas: Vec<f64> = triangles
+        .iter()
+        .map(|t| {
+            let [a, b, c] = t.map(|v| positions[v as usize]);
+            f64::from((b - a).cross(c - a).length())
+        })
+        .collect();
+    // Pieces are named by a vertex.
+    let mut piece_area = vec![0.0; positions.len()];
+    for (&piece, &area) in pieces.iter().zip(&areas) {
+        piece_area[piece as usize] += area;
+    }
+    let total: f64 = areas.iter().sum();
+    pieces
+        .iter()
+        .map(|&piece| piece_area[piece as usize] < SMALL_PIECE * total)
+        .collect()
 }
 
 /// Area, area centroid and second moments about it of a triangle surface, from the exact
@@ -289,9 +417,9 @@ fn moments(positions: &[DVec3], triangles: &[[u32; 3]]) -> (DVec3, DMat3, f64) {
     (centroid, covariance, area)
 }
 
-/// `n` points uniform in area over the triangles, from a fixed seed: the same mesh gives the
-/// same samples.
-fn sample(positions: &[Vec3], triangles: &[[u32; 3]], n: usize) -> Vec<Vec3> {
+/// `n` points uniform in area over the triangles, each with its triangle, from a fixed seed:
+/// the same mesh gives the same samples.
+fn sample(positions: &[Vec3], triangles: &[[u32; 3]], n: usize) -> Vec<(Vec3, usize)> {
     let mut cumulative = Vec::with_capacity(triangles.len());
     let mut total = 0.0f64;
     for t in triangles {
@@ -308,7 +436,7 @@ fn sample(positions: &[Vec3], triangles: &[[u32; 3]], n: usize) -> Vec<Vec3> {
                 .min(triangles.len() - 1);
             let [a, b, c] = triangles[i].map(|v| positions[v as usize]);
             let (r1, r2) = (rng.gen::<f32>().sqrt(), rng.gen::<f32>());
-            a * (1.0 - r1) + b * (r1 * (1.0 - r2)) + c * (r1 * r2)
+            (a * (1.0 - r1) + b * (r1 * (1.0 - r2)) + c * (r1 * r2), i)
         })
         .collect()
 }
@@ -368,7 +496,7 @@ mod tests {
         let turn = DQuat::from_axis_angle(glam::DVec3::new(1.0, 2.0, 0.5).normalize(), 1.1);
         let rotated = Shape::new(&moved(&raw, |p| turn * p), 1e-6).unwrap();
         assert_eq!(rotated.geometry_deviation(&shape, 1e-2), None);
-        let alignment = rotated.align(&shape, |_| true);
+        let alignment = rotated.align(&shape, 0.08, |_| true);
         assert!(alignment.rotated.surfaces.max < 1e-3, "{alignment:?}");
     }
 
@@ -377,7 +505,7 @@ mod tests {
         let raw = lopsided();
         let shape = Shape::new(&raw, 1e-6).unwrap();
         let mirror = Shape::new(&moved(&raw, |p| glam::DVec3::new(-p.x, p.y, p.z)), 1e-6).unwrap();
-        let alignment = mirror.align(&shape, |_| true);
+        let alignment = mirror.align(&shape, 0.08, |_| true);
         assert!(alignment.mirrored.surfaces.max < 1e-3, "{alignment:?}");
         assert!(alignment.rotated.surfaces.mean > 1e-2, "{alignment:?}");
     }

@@ -1,7 +1,8 @@
 //! Connectivity the geodesic and wave code walks on: vertex neighbours with edge lengths
 //! (Dijkstra, SPEC §2.1), the faces around each vertex and the face across each edge
 //! (iso-line tracing, SPEC §2.2). Stored as flat arrays (CSR) so that the per-vertex loops of
-//! extraction touch contiguous memory.
+//! extraction touch contiguous memory. Also the mesh's connected pieces, which a cut part
+//! keeps the largest of and the duplicate check forgives a simplification for deleting.
 
 use glam::DVec3;
 
@@ -16,6 +17,27 @@ pub struct FaceNeighbours {
     pub neighbour: Vec<[u32; 3]>,
     pub boundary_edges: usize,
     pub non_manifold_edges: usize,
+}
+
+/// The connected piece of each triangle (triangles sharing a vertex are connected), named by
+/// its smallest vertex, over `vertices` vertices. Union–find over the corners, written here:
+/// ten lines against a graph crate's whole API.
+pub fn pieces(vertices: usize, triangles: &[[u32; 3]]) -> Vec<u32> {
+    let mut parent: Vec<u32> = (0..vertices as u32).collect();
+    fn root(parent: &mut [u32], mut x: u32) -> u32 {
+        while parent[x as usize] != x {
+            parent[x as usize] = parent[parent[x as usize] as usize];
+            x = parent[x as usize];
+        }
+        x
+    }
+    for t in triangles {
+        for k in 1..3 {
+            let (a, b) = (root(&mut parent, t[0]), root(&mut parent, t[k]));
+            parent[a.max(b) as usize] = a.min(b);
+        }
+    }
+    triangles.iter().map(|t| root(&mut parent, t[0])).collect()
 }
 
 /// Pairs up the faces sharing each undirected edge.
@@ -137,4 +159,16 @@ fn csr(rows: usize, sorted_pairs: &[(u32, u32)]) -> (Vec<u32>, Vec<u32>) {
         start[r + 1] += start[r];
     }
     (start, sorted_pairs.iter().map(|&(_, v)| v).collect())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn pieces_join_triangles_through_shared_vertices() {
+        // Two triangles sharing vertex 2, one apart, one reaching back to the first.
+        let triangles = [[0, 1, 2], [5, 6, 7], [2, 3, 4], [8, 9, 3]];
+        assert_eq!(pieces(10, &triangles), [0, 5, 0, 0]);
+    }
 }

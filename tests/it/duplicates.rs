@@ -139,6 +139,58 @@ fn a_remeshed_morph_is_not_the_model_it_was_made_from() {
 }
 
 #[test]
+fn a_tree_that_lost_a_few_leaves_is_the_tree_and_one_that_lost_its_crown_is_not() {
+    let params = DuplicateParams::default();
+    let original = shape(&shapes::tree(1, 120, |_| true));
+    let evidence = |copy: &RawMesh, params: &DuplicateParams| {
+        verify(&original, &shape(copy), params).map(|v| v.evidence)
+    };
+    // Every tenth leaf deleted (as an edge collapse deletes isolated triangles), turned about
+    // the trunk, where the tree's two moments are near-equal and its principal axes arbitrary,
+    // then moved.
+    let thinned = shapes::tree(1, 120, |leaf| leaf % 10 != 0);
+    let turn = DMat4::from_rotation_z(37f64.to_radians());
+    let copy = shapes::transformed(&thinned, shapes::random_motion(5) * turn);
+    assert_eq!(evidence(&copy, &params), Some(Evidence::SameShape));
+    // That is the forgiveness for deleted small pieces: without it, a leaf is too far.
+    let unforgiving = DuplicateParams {
+        deleted: 0.0,
+        ..params.clone()
+    };
+    assert_eq!(evidence(&copy, &unforgiving), None);
+    // The bare trunk (a fifth of the surface gone) and a trunk with other leaves (CAPOD's
+    // trees m49 and m59 share one) are other assets.
+    assert_eq!(evidence(&shapes::tree(1, 120, |_| false), &params), None);
+    assert_eq!(evidence(&shapes::tree(2, 120, |_| true), &params), None);
+}
+
+#[test]
+fn a_real_tree_simplified_to_half_is_the_tree() {
+    // CAPOD's tree m50: a trunk and branches under ~2 000 leaves, each a separate triangle,
+    // with two second moments within 0.4 %. Halving its vertices deletes leaves, and its
+    // principal axes across the trunk are arbitrary: it was missed before both were handled.
+    let raw = load_bytes(
+        &fixture("capod_tree_m50.obj"),
+        salient::mesh::Format::Obj,
+        &NoResources,
+        &Limits::default(),
+    )
+    .unwrap();
+    let params = DuplicateParams::default();
+    let original = shape(&raw);
+    let copy = shape(&remeshed(&raw));
+    assert_eq!(
+        verify(&original, &copy, &params).map(|v| v.evidence),
+        Some(Evidence::SameShape)
+    );
+    let unforgiving = DuplicateParams {
+        deleted: 0.0,
+        ..params
+    };
+    assert_eq!(verify(&original, &copy, &unforgiving), None);
+}
+
+#[test]
 fn scores_fall_from_one_for_identical_meshes() {
     let params = DuplicateParams::default();
     let original = shape(&model());
