@@ -12,7 +12,7 @@ use serde::Serialize;
 use salient::collection::{find_meshes, SignatureCache, Source};
 use salient::descriptor::patch::Packed;
 use salient::mesh::load_path;
-use salient::partial::{by_residual, nearest_first, stored_patches, Part, Probe, Target};
+use salient::partial::{by_residual, nearest_first, Part, Probe, Target};
 use salient::rank::{Index, Method, Scope};
 use salient::signature::Signature;
 use salient::Limits;
@@ -33,7 +33,7 @@ pub struct Args {
     method: Option<Method>,
     /// The query is a piece of a model (cut from it, with an open boundary): rank the models
     /// that contain a part like it (`salient::partial`), as the service does: the models
-    /// nearest it by their patches (made for each search, not cached) verified by
+    /// nearest it by their patches (cached beside the signatures) verified by
     /// registration, then the rest by the salient-feature fit. `--method` does not apply.
     #[arg(long, conflicts_with = "method")]
     partial: bool,
@@ -191,16 +191,15 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             Vec::new(),
         ),
         Query::Part(part, probe) => {
-            // The patches of every model, made for this search (not cached: ~30 ms of a
-            // core a model), nearest the part first, as the service keeps them.
+            // The patches of every model, cached beside the signatures, nearest the part
+            // first, as the service keeps them.
             let nearest: Vec<(f64, String)> = match probe {
                 Some(probe) => {
                     let piece = Packed::piece(probe.description());
                     indexed
                         .par_iter()
                         .filter_map(|(id, path)| {
-                            let raw = load_path(path, &limits).ok()?;
-                            let packed = stored_patches(&raw, &params.mesh).ok()?;
+                            let packed = cache.patches(path, &limits).ok()?;
                             Some((packed.nearest(&piece), id.clone()))
                         })
                         .collect()

@@ -376,6 +376,31 @@ fn search_partial_finds_the_model_a_piece_was_cut_from() {
     ]));
     assert_eq!(known["results"][0]["part_scale"], 0.5);
 
+    // The models' patches are cached beside their signatures; a damaged entry is made again.
+    let patches: Vec<std::path::PathBuf> =
+        std::fs::read_dir(std::path::Path::new(collection).join(".salient-cache"))
+            .unwrap()
+            .map(|entry| entry.unwrap().path())
+            .filter(|path| path.extension().is_some_and(|e| e == "patches"))
+            .collect();
+    assert_eq!(patches.len(), 3, "{patches:?}");
+    for path in &patches {
+        std::fs::write(path, b"damaged").unwrap();
+    }
+    let again = json_of(&salient(&[
+        "search",
+        part,
+        collection,
+        "--partial",
+        "-k",
+        "2",
+        "--json",
+    ]));
+    assert_eq!(again["results"], found["results"]);
+    for path in &patches {
+        assert_ne!(std::fs::read(path).unwrap(), b"damaged");
+    }
+
     for bad in [
         vec!["search", part, collection, "--partial", "--method", "ecc"],
         vec![
