@@ -347,15 +347,18 @@ fn search_partial_finds_the_model_a_piece_was_cut_from() {
     shapes::write_obj(&part, &spike);
     let (part, collection) = (part.to_str().unwrap(), collection.to_str().unwrap());
 
-    let found = json_of(&salient(&[
-        "search",
-        part,
-        collection,
-        "--partial",
-        "-k",
-        "2",
-        "--json",
-    ]));
+    let search = || {
+        json_of(&salient(&[
+            "search",
+            part,
+            collection,
+            "--partial",
+            "-k",
+            "2",
+            "--json",
+        ]))
+    };
+    let found = search();
     assert_eq!(found["partial"], true);
     assert_eq!(found["results"][0]["id"], "star.obj", "{found}");
     assert!(found["results"][0]["part_scale"].is_f64());
@@ -387,15 +390,7 @@ fn search_partial_finds_the_model_a_piece_was_cut_from() {
     for path in &patches {
         std::fs::write(path, b"damaged").unwrap();
     }
-    let again = json_of(&salient(&[
-        "search",
-        part,
-        collection,
-        "--partial",
-        "-k",
-        "2",
-        "--json",
-    ]));
+    let again = search();
     assert_eq!(again["results"], found["results"]);
     for path in &patches {
         assert_ne!(std::fs::read(path).unwrap(), b"damaged");
