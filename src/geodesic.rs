@@ -5,8 +5,8 @@
 //! Extraction runs this once per vertex, so the state lives in a [`GeodesicScratch`] reused
 //! by each worker thread: only the entries touched by the previous run are reset.
 
+use dary_heap::QuaternaryHeap;
 use std::cmp::Reverse;
-use std::collections::BinaryHeap;
 
 use glam::DVec3;
 
@@ -41,7 +41,7 @@ pub struct GeodesicScratch {
     /// Whether a vertex is settled in the current run (fast marching updates a triangle only
     /// from settled corners); reset from `settled`.
     known: Vec<bool>,
-    heap: BinaryHeap<Reverse<(u64, u32)>>,
+    heap: QuaternaryHeap<Reverse<(u64, u32)>>,
 }
 
 /// The result of one bounded run.
@@ -73,7 +73,7 @@ impl GeodesicScratch {
             touched: Vec::new(),
             settled: Vec::new(),
             known: vec![false; vertex_count],
-            heap: BinaryHeap::new(),
+            heap: QuaternaryHeap::new(),
         }
     }
 

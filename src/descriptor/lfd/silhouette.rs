@@ -3,7 +3,7 @@
 
 use glam::{DVec2, DVec3};
 
-use crate::raster::fill_triangle;
+use crate::raster::fill_spans;
 
 /// Width and height of a silhouette, as in the paper.
 pub const IMAGE_SIZE: usize = 256;
@@ -51,8 +51,9 @@ impl Silhouette {
         let mut pixels = vec![false; IMAGE_SIZE * IMAGE_SIZE];
         for t in triangles {
             let corners = t.map(|v| projected[v as usize]);
-            fill_triangle(corners, IMAGE_SIZE as u32, |x, y, _| {
-                pixels[y as usize * IMAGE_SIZE + x as usize] = true;
+            fill_spans(corners, IMAGE_SIZE as u32, |y, xs| {
+                let row = y as usize * IMAGE_SIZE;
+                pixels[row + *xs.start() as usize..=row + *xs.end() as usize].fill(true);
             });
         }
         Self { pixels }
