@@ -188,6 +188,17 @@ pub fn fuse(h: &HybridParams, parts: [Option<f64>; 4]) -> f64 {
     terms.into_iter().flatten().sum()
 }
 
+/// A lower bound on [`fuse`] of any parts that agree with `parts` where these are present:
+/// the terms of the present parts before [`fuse`] scales them up for the missing ones (never
+/// down), each as [`contributions`] computes it, so also in floating point.
+fn least_sum(h: &HybridParams, parts: [Option<f64>; 4]) -> f64 {
+    let terms = h.terms();
+    (0..4)
+        .filter(|&k| terms[k].weight > 0.0)
+        .filter_map(|k| Some(terms[k].weight * parts[k]? / terms[k].scale))
+        .sum()
+}
+
 /// The largest value of part `k` for which [`fuse`] of `parts` with part `k` present stays
 /// within `kth`, with a margin for rounding: a cutoff for computing that part that never
 /// rejects an entry the sum itself would keep (the caller still compares the sum).
@@ -353,6 +364,9 @@ const BATCH: usize = 64;
 
 /// Entries put in bound order at a time by the pruned ranking (a multiple of [`BATCH`]).
 const SORTED: usize = 16 * BATCH;
+
+/// One entry in this many is looked at first by a sampled [`Index::cascade`].
+const SAMPLE: usize = 64;
 
 impl Index {
     /// An index whose light field descriptors are shelved in the system's temporary
@@ -628,7 +642,7 @@ impl Index {
         self.cascade(
             k,
             self.admits(scope),
-            |e| centroid_bound(centroid, e.centroid(), params),
+            (|e, _| centroid_bound(centroid, e.centroid(), params), false),
             |e, _| {
                 Some(lower_bound(
                     (&summary, centroid),
@@ -687,9 +701,20 @@ impl Index {
         // centroid bound in single precision and the LFD's sketch.
         let centroid = prepared.features.centroid();
         let centroid = (&centroid.0[..], &centroid.1[..], summary.features());
-        let coarse = |e: Entry| {
+        // The geodesic and ECC parts first: past `limit` together, most entries need no LFD
+        // sketch (a quarter of the pass's reads).
+        let coarse = |e: Entry, limit: f64| {
+            let geodesic = geodesic(e);
+            let least = least_sum(h, [None, None, None, geodesic]);
+            if least > limit {
+                return least;
+            }
             let ecc = with_ecc(e).then(|| centroid_bound(centroid, e.centroid(), params));
-            fuse(h, [ecc, d2(e), lfd_sketch(e), geodesic(e)])
+            let least = least_sum(h, [ecc, None, None, geodesic]);
+            if least > limit {
+                return least;
+            }
+            fuse(h, [ecc, d2(e), lfd_sketch(e), geodesic])
         };
         // The LFD's summary bound with the ECC's centroid bound orders the visit; the ECC's
         // projection bound waits for the visit, which stops long before most of the entries
@@ -731,7 +756,7 @@ impl Index {
             let ecc = costs.map(|c| compare_costs(&c, params).sim);
             Ok(Some(fuse(h, [ecc, d2, lfd, geodesic])))
         };
-        self.cascade(k, self.admits(scope), coarse, fine, exact)
+        self.cascade(k, self.admits(scope), (coarse, true), fine, exact)
     }
 
     /// What `mode=partial` ranks (its one rule, served and evaluated): first the candidates to
@@ -755,7 +780,7 @@ impl Index {
         let fit = self.cascade(
             k.max(verified),
             fitted,
-            |e| part.bound(e.summary()),
+            (|e, _| part.bound(e.summary()), false),
             // The first bound is the only one; it orders the visit.
             |_, _| Some(0.0),
             |e, kth| Ok(part.fit(e.features(), params, kth).map(|f| f.distance)),
@@ -824,7 +849,7 @@ impl Index {
         self.cascade(
             k,
             |e| admits(e) && e.comparable(Method::Lfd),
-            |e| sketch.lower_bound(e.sketch().expect(KEPT)),
+            (|e, _| sketch.lower_bound(e.sketch().expect(KEPT)), false),
             |e, _| Some(summary.lower_bound(e.lfd().expect(KEPT))),
             |e, kth| {
                 let descriptor = e.light_field()?.expect(KEPT);
@@ -838,11 +863,17 @@ impl Index {
     /// a real k-th distance and so never below the true one, reject most entries;
     /// `fine(entry, kth)`, tighter and costlier, orders the others for the visit, or is `None`
     /// when it can tell cheaply that the entry is past `kth`. The result equals a full scan's.
+    ///
+    /// `coarse(entry, limit)` may stop early and return any value above `limit` once its
+    /// bound is past it. With `sampled`, a first look at every [`SAMPLE`]th entry finds a
+    /// real k-th distance before the pass over all of them, which is then its limit: most
+    /// entries stop at their cheapest parts (the hybrid's first pass was ~70 % of a
+    /// `similar` ranking).
     fn cascade(
         &self,
         k: usize,
         keep: impl Fn(Entry) -> bool + Sync,
-        coarse: impl Fn(Entry) -> f64 + Sync,
+        (coarse, sampled): (impl Fn(Entry, f64) -> f64 + Sync, bool),
         fine: impl Fn(Entry, f64) -> Option<f64> + Sync,
         exact: impl Fn(Entry, f64) -> io::Result<Option<f64>> + Sync,
     ) -> io::Result<Ranking> {
@@ -850,46 +881,89 @@ impl Index {
         // vector a query (1.6 MB at 100 000 entries), gathered from an unindexed parallel
         // collect, zeroing its new pages alone was ~13 % of a `similar` ranking's profile.
         let mut coarse_order = COARSE.take();
+        let mut solved: Vec<(usize, Option<f64>)> = Vec::new();
+        let solve = |solved: &mut Vec<(usize, Option<f64>)>, seeds: &[usize]| -> io::Result<()> {
+            let fresh: Vec<usize> = seeds
+                .iter()
+                .copied()
+                .filter(|i| !solved.iter().any(|(j, _)| j == i))
+                .collect();
+            let distances: Vec<Option<f64>> = fresh
+                .par_iter()
+                .map(|&i| exact(self.entries.get(i), f64::INFINITY))
+                .collect::<io::Result<_>>()?;
+            solved.extend(fresh.into_iter().zip(distances));
+            Ok(())
+        };
+        let kth_of = |solved: &[(usize, Option<f64>)]| {
+            let mut best: Vec<Hit> = solved
+                .iter()
+                .filter_map(|&(i, distance)| {
+                    Some(Hit {
+                        id: self.entries.get(i).id().to_string(),
+                        distance: distance?,
+                    })
+                })
+                .collect();
+            sort_hits(&mut best);
+            let kth = best
+                .get(k.wrapping_sub(1))
+                .map_or(f64::INFINITY, |hit| hit.distance);
+            (best, kth)
+        };
+        let limit = if sampled && k > 0 {
+            (0..self.entries.len())
+                .into_par_iter()
+                .step_by(SAMPLE)
+                .map(|i| {
+                    let e = self.entries.get(i);
+                    (
+                        if keep(e) {
+                            coarse(e, f64::INFINITY)
+                        } else {
+                            f64::NAN
+                        },
+                        i,
+                    )
+                })
+                .collect_into_vec(&mut coarse_order);
+            coarse_order.retain(|(bound, _)| !bound.is_nan());
+            let seeds: Vec<usize> = self
+                .smallest(&mut coarse_order, k)
+                .iter()
+                .map(|&(_, i)| i)
+                .collect();
+            solve(&mut solved, &seeds)?;
+            kth_of(&solved).1
+        } else {
+            f64::INFINITY
+        };
         (0..self.entries.len())
             .into_par_iter()
             .map(|i| {
                 let e = self.entries.get(i);
-                (if keep(e) { coarse(e) } else { f64::NAN }, i)
+                (if keep(e) { coarse(e, limit) } else { f64::NAN }, i)
             })
             .collect_into_vec(&mut coarse_order);
         coarse_order.retain(|(bound, _)| !bound.is_nan());
         let admitted = coarse_order.len();
+        // Past a real k-th distance: never in the top `k`, not even by a tie.
+        coarse_order.retain(|&(bound, _)| bound <= limit);
         let seeds: Vec<usize> = self
             .smallest(&mut coarse_order, k)
             .iter()
             .map(|&(_, i)| i)
             .collect();
-        let solved: Vec<Option<f64>> = seeds
-            .par_iter()
-            .map(|&i| exact(self.entries.get(i), f64::INFINITY))
-            .collect::<io::Result<_>>()?;
-        let mut best: Vec<Hit> = seeds
-            .iter()
-            .zip(solved)
-            .filter_map(|(&i, distance)| {
-                Some(Hit {
-                    id: self.entries.get(i).id().to_string(),
-                    distance: distance?,
-                })
-            })
-            .collect();
-        sort_hits(&mut best);
-        let kth = best
-            .get(k.wrapping_sub(1))
-            .map_or(f64::INFINITY, |hit| hit.distance);
-        // The seeds are solved: the visit starts from them, with their k-th distance.
+        solve(&mut solved, &seeds)?;
+        let (best, kth) = kth_of(&solved);
+        // The solved entries are known: the visit starts from them, with their k-th distance.
         let order: Vec<(f64, usize)> = coarse_order
             .par_iter()
-            .filter(|(bound, i)| *bound <= kth && !seeds.contains(i))
+            .filter(|(bound, i)| *bound <= kth && !solved.iter().any(|(j, _)| j == i))
             .filter_map(|&(bound, i)| Some((fine(self.entries.get(i), kth)?.max(bound), i)))
             .collect();
         COARSE.set(coarse_order);
-        let seeded = best.len();
+        let seeded = solved.iter().filter(|(_, d)| d.is_some()).count();
         let (hits, visited) = self.refine(k, order, best, exact)?;
         let evaluated = seeded + visited;
         Ok(Ranking {
