@@ -911,49 +911,33 @@ impl Index {
                 .map_or(f64::INFINITY, |hit| hit.distance);
             (best, kth)
         };
-        let limit = if sampled && k > 0 {
+        // The first bounds of every `step`th entry in `keep`, stopping past `limit`.
+        let pass = |order: &mut Vec<(f64, usize)>, step: usize, limit: f64| {
             (0..self.entries.len())
                 .into_par_iter()
-                .step_by(SAMPLE)
+                .step_by(step)
                 .map(|i| {
                     let e = self.entries.get(i);
-                    (
-                        if keep(e) {
-                            coarse(e, f64::INFINITY)
-                        } else {
-                            f64::NAN
-                        },
-                        i,
-                    )
+                    (if keep(e) { coarse(e, limit) } else { f64::NAN }, i)
                 })
-                .collect_into_vec(&mut coarse_order);
-            coarse_order.retain(|(bound, _)| !bound.is_nan());
-            let seeds: Vec<usize> = self
-                .smallest(&mut coarse_order, k)
-                .iter()
-                .map(|&(_, i)| i)
-                .collect();
-            solve(&mut solved, &seeds)?;
+                .collect_into_vec(order);
+            order.retain(|(bound, _)| !bound.is_nan());
+        };
+        let seeds_of = |order: &mut [(f64, usize)]| -> Vec<usize> {
+            self.smallest(order, k).iter().map(|&(_, i)| i).collect()
+        };
+        let limit = if sampled && k > 0 {
+            pass(&mut coarse_order, SAMPLE, f64::INFINITY);
+            solve(&mut solved, &seeds_of(&mut coarse_order))?;
             kth_of(&solved).1
         } else {
             f64::INFINITY
         };
-        (0..self.entries.len())
-            .into_par_iter()
-            .map(|i| {
-                let e = self.entries.get(i);
-                (if keep(e) { coarse(e, limit) } else { f64::NAN }, i)
-            })
-            .collect_into_vec(&mut coarse_order);
-        coarse_order.retain(|(bound, _)| !bound.is_nan());
+        pass(&mut coarse_order, 1, limit);
         let admitted = coarse_order.len();
         // Past a real k-th distance: never in the top `k`, not even by a tie.
         coarse_order.retain(|&(bound, _)| bound <= limit);
-        let seeds: Vec<usize> = self
-            .smallest(&mut coarse_order, k)
-            .iter()
-            .map(|&(_, i)| i)
-            .collect();
+        let seeds = seeds_of(&mut coarse_order);
         solve(&mut solved, &seeds)?;
         let (best, kth) = kth_of(&solved);
         // The solved entries are known: the visit starts from them, with their k-th distance.
