@@ -204,7 +204,8 @@ impl App {
             config.workers,
             config.queue_depth,
             Duration::from_secs(config.request_timeout_secs),
-        );
+        )
+        .map_err(|e| StartError::Threads(e.to_string()))?;
         let metrics = Metrics::default();
         metrics.models.set(models as i64);
         let rankers = rankers::Rankers::new(config.rankings, metrics.rankings_waiting.clone())
@@ -389,10 +390,11 @@ impl App {
         .map_err(AppError::from)
     }
 
-    /// Lowers the priority of extraction ([`Config::extraction_nice`]): for the serving
-    /// process, once.
+    /// Lowers the priority of extraction ([`Config::extraction_nice`]) and of the background
+    /// work that may wait for idle cores: for the serving process, once.
     pub fn lower_extraction_priority(&self) {
         pool::lower_extraction_priority(self.config.extraction_nice);
+        self.pool.lower_idle_priority();
     }
 
     fn set_model_count(&self, models: usize) {

@@ -4,13 +4,14 @@
 //! limit is answered 503 too, while its job (which cannot be interrupted) keeps its permit
 //! until it ends, so the pool never runs more than `workers` jobs. A job whose caller gave up
 //! before a worker was free (the client went away, or the time limit passed) never runs.
-//! Background work ([`Pool::run_background`]) waits for a worker without taking a queue slot,
-//! and runs at the extraction threads' lower priority.
+//! Background work ([`Pool::run_background`], [`Pool::run_idle`]) waits for a worker without
+//! taking a queue slot, and runs at a lower priority than requests.
 //! Jobs run in the tracing span of their caller.
 
 use std::sync::Arc;
 use std::time::Duration;
 
+use rayon::{ThreadPool, ThreadPoolBuildError, ThreadPoolBuilder};
 use tokio::sync::{Notify, Semaphore};
 
 use super::error::AppError;
@@ -23,17 +24,28 @@ pub struct Pool {
     timeout: Duration,
     /// Told when the last admitted job ends ([`Pool::idle`]).
     drained: Arc<Notify>,
+    /// The thread of [`Pool::run_idle`].
+    idle_thread: Arc<ThreadPool>,
 }
 
 impl Pool {
-    pub fn new(workers: usize, queue_depth: usize, timeout: Duration) -> Self {
-        Self {
+    pub fn new(
+        workers: usize,
+        queue_depth: usize,
+        timeout: Duration,
+    ) -> Result<Self, ThreadPoolBuildError> {
+        let idle_thread = ThreadPoolBuilder::new()
+            .num_threads(1)
+            .thread_name(|_| "salient-idle".into())
+            .build()?;
+        Ok(Self {
             admitted: Arc::new(Semaphore::new(workers + queue_depth)),
             running: Arc::new(Semaphore::new(workers)),
             capacity: workers + queue_depth,
             timeout,
             drained: Arc::new(Notify::new()),
-        }
+            idle_thread: Arc::new(idle_thread),
+        })
     }
 
     /// Returns once no admitted job is running or waiting: background work that should not
@@ -92,6 +104,35 @@ impl Pool {
         self.run_with((), move || rayon::scope(|_| job())).await
     }
 
+    /// Runs `job` on a thread of its own which, once [`Pool::lower_idle_priority`] has run,
+    /// the scheduler runs only on a core with nothing else to run (`SCHED_IDLE`): for work
+    /// that may wait for as long as the service is busy, the stored patches. At niceness 10 a
+    /// thread still takes ~10 % of a busy core (the scheduler's weights 110 against 1 024),
+    /// and the patches a start makes for 100 000 stored models (~2.5 CPU-hours) took that
+    /// from the rankings all through the load bench. It takes no worker: held by a job the
+    /// scheduler keeps waiting, a worker would be kept from the uploads.
+    pub async fn run_idle<T: Send + 'static>(
+        &self,
+        job: impl FnOnce() -> T + Send + 'static,
+    ) -> Result<T, AppError> {
+        let idle_thread = self.idle_thread.clone();
+        blocking(move || idle_thread.install(job)).await
+    }
+
+    /// Puts [`Pool::run_idle`]'s thread in `SCHED_IDLE`: for the serving process, once (an
+    /// unprivileged thread cannot leave it). Linux only.
+    pub fn lower_idle_priority(&self) {
+        #[cfg(target_os = "linux")]
+        self.idle_thread.broadcast(|_| {
+            let param = libc::sched_param { sched_priority: 0 };
+            // SAFETY: `param` outlives the call, which only reads it; pid 0 is this thread.
+            let done = unsafe { libc::sched_setscheduler(0, libc::SCHED_IDLE, &param) };
+            if done != 0 {
+                tracing::warn!("cannot give the background thread the idle priority");
+            }
+        });
+    }
+
     /// Waits for a worker, then runs `job` on a blocking thread holding it and `permit`.
     async fn run_with<T: Send + 'static, P: Send + 'static>(
         &self,
@@ -104,19 +145,30 @@ impl Pool {
             .acquire_owned()
             .await
             .expect("the pool's semaphore is never closed");
-        let span = tracing::Span::current();
-        tokio::task::spawn_blocking(move || {
-            let _span = span.enter();
+        blocking(move || {
             let result = job();
             // The queue slot goes before the worker: whoever gets the worker next finds
             // the slot free already.
             drop((permit, worker));
-            release_free_memory();
             result
         })
         .await
-        .map_err(|join| AppError::Internal(format!("extraction failed: {join}")))
     }
+}
+
+/// Runs `job` on a blocking thread, in the caller's tracing span.
+async fn blocking<T: Send + 'static>(
+    job: impl FnOnce() -> T + Send + 'static,
+) -> Result<T, AppError> {
+    let span = tracing::Span::current();
+    tokio::task::spawn_blocking(move || {
+        let _span = span.enter();
+        let result = job();
+        release_free_memory();
+        result
+    })
+    .await
+    .map_err(|join| AppError::Internal(format!("extraction failed: {join}")))
 }
 
 /// A request's place in the pool (running or waiting); when the last one goes, whether its
@@ -204,7 +256,7 @@ mod tests {
 
     #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
     async fn a_full_queue_is_refused_at_once() {
-        let pool = Arc::new(Pool::new(1, 0, Duration::from_secs(600)));
+        let pool = Arc::new(Pool::new(1, 0, Duration::from_secs(600)).unwrap());
         let (job, release) = held(&pool);
         // The worker is busy and there is no queue: refused without waiting for it.
         assert!(matches!(
@@ -220,7 +272,7 @@ mod tests {
 
     #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
     async fn a_timed_out_job_keeps_its_permit_until_it_ends() {
-        let pool = Arc::new(Pool::new(1, 0, Duration::from_millis(20)));
+        let pool = Arc::new(Pool::new(1, 0, Duration::from_millis(20)).unwrap());
         let (job, release) = held(&pool);
         // The job waits for the test, so the time limit passes first: the caller gets its
         // answer ...
@@ -240,7 +292,7 @@ mod tests {
 
     #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
     async fn a_job_whose_caller_has_gone_never_runs() {
-        let pool = Arc::new(Pool::new(1, 1, Duration::from_secs(600)));
+        let pool = Arc::new(Pool::new(1, 1, Duration::from_secs(600)).unwrap());
         let (first, release) = held(&pool);
         let ran = Arc::new(AtomicBool::new(false));
         let (flag, waiting) = (ran.clone(), pool.clone());
@@ -264,7 +316,7 @@ mod tests {
 
     #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
     async fn idle_waits_for_every_admitted_job_to_end() {
-        let pool = Arc::new(Pool::new(1, 1, Duration::from_secs(600)));
+        let pool = Arc::new(Pool::new(1, 1, Duration::from_secs(600)).unwrap());
         pool.idle().await;
         let (job, release) = held(&pool);
         let (waiting, pending) = (pool.clone(), pool.clone());
@@ -285,7 +337,7 @@ mod tests {
 
     #[tokio::test]
     async fn background_jobs_run_on_the_extraction_threads() {
-        let pool = Pool::new(1, 0, Duration::from_secs(600));
+        let pool = Pool::new(1, 0, Duration::from_secs(600)).unwrap();
         let on_rayon = pool
             .run_background(|| rayon::current_thread_index().is_some())
             .await
@@ -302,8 +354,24 @@ mod tests {
     }
 
     #[tokio::test]
+    async fn idle_jobs_run_on_a_thread_of_their_own_at_the_idle_priority() {
+        let pool = Pool::new(1, 0, Duration::from_secs(600)).unwrap();
+        let name = || std::thread::current().name().map(str::to_owned);
+        let name = pool.run_idle(name).await.unwrap();
+        assert_eq!(name.as_deref(), Some("salient-idle"));
+        #[cfg(target_os = "linux")]
+        {
+            // SAFETY: takes a plain integer (0, this thread) and touches no memory of ours.
+            let policy = || unsafe { libc::sched_getscheduler(0) };
+            assert_ne!(pool.run_idle(policy).await.unwrap(), libc::SCHED_IDLE);
+            pool.lower_idle_priority();
+            assert_eq!(pool.run_idle(policy).await.unwrap(), libc::SCHED_IDLE);
+        }
+    }
+
+    #[tokio::test]
     async fn a_panicking_job_is_an_internal_error() {
-        let pool = Pool::new(1, 0, Duration::from_secs(600));
+        let pool = Pool::new(1, 0, Duration::from_secs(600)).unwrap();
         let result = pool.run(|| -> () { panic!("a bug") }).await;
         assert!(matches!(result, Err(AppError::Internal(_))), "{result:?}");
         // The worker is free again.
