@@ -29,13 +29,15 @@ use crate::params::{HybridParams, Params, SimilarityParams};
 use crate::partial::{Fit, Part};
 use crate::signature::Signature;
 use crate::similarity::{
-    centroid_bound, compare_costs, lower_bound, CostMatrix, Features, Summary,
+    centroid_bound, centroid_span_bound, compare_costs, lower_bound, CostMatrix, Features, Summary,
 };
 
+mod arrange;
 mod columns;
 mod shelf;
 
 pub use columns::Row;
+use columns::{BlockSpan, BLOCK};
 use columns::{Columns, Entry};
 use shelf::Place;
 
@@ -365,8 +367,12 @@ const BATCH: usize = 64;
 /// Entries put in bound order at a time by the pruned ranking (a multiple of [`BATCH`]).
 const SORTED: usize = 16 * BATCH;
 
-/// One entry in this many is looked at first by a sampled [`Index::cascade`].
-const SAMPLE: usize = 64;
+/// Entries per result that [`Index::cascade`] with blocks bounds first, from the blocks of
+/// least bound, for its first k-th distance.
+const SEEDING: usize = 4;
+
+/// No block bound ([`Index::cascade`]): for the rankings whose first bound has none.
+const NO_BLOCKS: Option<fn(&BlockSpan) -> f64> = None;
 
 impl Index {
     /// An index whose light field descriptors are shelved in the system's temporary
@@ -422,6 +428,18 @@ impl Index {
                 self.entries.push(row);
             }
         }
+    }
+
+    /// Puts entries near each other by the hybrid's first bound in the same blocks
+    /// ([`arrange`]), which a hybrid ranking then rejects a block at a time: for after a
+    /// start's load, whose order (by id) says nothing of the shapes. Entries added later go at
+    /// the end, in blocks of their own; rankings are the same in any order.
+    pub fn arrange(&mut self) {
+        let order = arrange::order(&self.entries, &self.params);
+        self.entries.permute(&order);
+        self.position = (self.entries.iter())
+            .map(|e| (e.id().clone(), e.number()))
+            .collect();
     }
 
     /// Removes an entry; returns whether it was there.
@@ -642,7 +660,10 @@ impl Index {
         self.cascade(
             k,
             self.admits(scope),
-            (|e, _| centroid_bound(centroid, e.centroid(), params), false),
+            (
+                |e, _| centroid_bound(centroid, e.centroid(), params),
+                NO_BLOCKS,
+            ),
             |e, _| {
                 Some(lower_bound(
                     (&summary, centroid),
@@ -694,9 +715,8 @@ impl Index {
         let geodesic = |e: Entry| Some(prepared.geodesic.as_ref()?.distance(e.geodesic()?));
         // From the entry's summary, not its signature: this runs for every entry, and the
         // signature is another cache miss away.
-        let with_ecc = |e: Entry| {
-            h.ecc.weight > 0.0 && !query.features.is_empty() && e.summary().features() > 0
-        };
+        let with_ecc_query = h.ecc.weight > 0.0 && !query.features.is_empty();
+        let with_ecc = |e: Entry| with_ecc_query && e.summary().features() > 0;
         // The first pass, over every entry, takes the cheap halves of the bounds: the ECC's
         // centroid bound in single precision and the LFD's sketch.
         let centroid = prepared.features.centroid();
@@ -715,6 +735,21 @@ impl Index {
                 return least;
             }
             fuse(h, [ecc, d2(e), lfd_sketch(e), geodesic])
+        };
+        // The same parts' bounds over a block's boxes: only parts every entry of the block
+        // has, unscaled (`least_sum`), so never above the first bound of any of them.
+        let block = |b: &BlockSpan| {
+            let geodesic =
+                (prepared.geodesic.as_ref().zip(b.geodesic())).map(|(q, span)| q.distance_to(span));
+            let ecc = b
+                .centroid()
+                .filter(|_| with_ecc_query)
+                .map(|(spans, counts)| centroid_span_bound(centroid, spans, counts, params));
+            let lfd = match (&lfd_query, b.sketch()) {
+                (Some((q, _)), Some(span)) if h.lfd.weight > 0.0 => Some(q.span_bound(span)),
+                _ => None,
+            };
+            least_sum(h, [ecc, None, lfd, geodesic])
         };
         // The LFD's summary bound with the ECC's centroid bound orders the visit; the ECC's
         // projection bound waits for the visit, which stops long before most of the entries
@@ -756,7 +791,7 @@ impl Index {
             let ecc = costs.map(|c| compare_costs(&c, params).sim);
             Ok(Some(fuse(h, [ecc, d2, lfd, geodesic])))
         };
-        self.cascade(k, self.admits(scope), (coarse, true), fine, exact)
+        self.cascade(k, self.admits(scope), (coarse, Some(block)), fine, exact)
     }
 
     /// What `mode=partial` ranks (its one rule, served and evaluated): first the candidates to
@@ -780,7 +815,7 @@ impl Index {
         let fit = self.cascade(
             k.max(verified),
             fitted,
-            (|e, _| part.bound(e.summary()), false),
+            (|e, _| part.bound(e.summary()), NO_BLOCKS),
             // The first bound is the only one; it orders the visit.
             |_, _| Some(0.0),
             |e, kth| Ok(part.fit(e.features(), params, kth).map(|f| f.distance)),
@@ -849,7 +884,10 @@ impl Index {
         self.cascade(
             k,
             |e| admits(e) && e.comparable(Method::Lfd),
-            (|e, _| sketch.lower_bound(e.sketch().expect(KEPT)), false),
+            (
+                |e, _| sketch.lower_bound(e.sketch().expect(KEPT)),
+                NO_BLOCKS,
+            ),
             |e, _| Some(summary.lower_bound(e.lfd().expect(KEPT))),
             |e, kth| {
                 let descriptor = e.light_field()?.expect(KEPT);
@@ -865,15 +903,19 @@ impl Index {
     /// when it can tell cheaply that the entry is past `kth`. The result equals a full scan's.
     ///
     /// `coarse(entry, limit)` may stop early and return any value above `limit` once its
-    /// bound is past it. With `sampled`, a first look at every [`SAMPLE`]th entry finds a
-    /// real k-th distance before the pass over all of them, which is then its limit: most
-    /// entries stop at their cheapest parts (the hybrid's first pass was ~70 % of a
-    /// `similar` ranking).
+    /// bound is past it. With `block`, a bound never above `coarse(entry, ∞)` of any entry of
+    /// a block ([`BlockSpan`]), a first look at the blocks of least bound finds a real k-th distance
+    /// before the pass over all entries, which is then its limit: the blocks past it are
+    /// passed over whole, and most other entries stop at their cheapest parts (the hybrid's
+    /// first pass was ~70 % of a `similar` ranking).
     fn cascade(
         &self,
         k: usize,
         keep: impl Fn(Entry) -> bool + Sync,
-        (coarse, sampled): (impl Fn(Entry, f64) -> f64 + Sync, bool),
+        (coarse, block): (
+            impl Fn(Entry, f64) -> f64 + Sync,
+            Option<impl Fn(&BlockSpan) -> f64 + Sync>,
+        ),
         fine: impl Fn(Entry, f64) -> Option<f64> + Sync,
         exact: impl Fn(Entry, f64) -> io::Result<Option<f64>> + Sync,
     ) -> io::Result<Ranking> {
@@ -911,29 +953,57 @@ impl Index {
                 .map_or(f64::INFINITY, |hit| hit.distance);
             (best, kth)
         };
-        // The first bounds of every `step`th entry in `keep`, stopping past `limit`.
-        let pass = |order: &mut Vec<(f64, usize)>, step: usize, limit: f64| {
-            (0..self.entries.len())
-                .into_par_iter()
-                .step_by(step)
-                .map(|i| {
-                    let e = self.entries.get(i);
-                    (if keep(e) { coarse(e, limit) } else { f64::NAN }, i)
-                })
-                .collect_into_vec(order);
-            order.retain(|(bound, _)| !bound.is_nan());
-        };
         let seeds_of = |order: &mut [(f64, usize)]| -> Vec<usize> {
             self.smallest(order, k).iter().map(|&(_, i)| i).collect()
         };
-        let limit = if sampled && k > 0 {
-            pass(&mut coarse_order, SAMPLE, f64::INFINITY);
-            solve(&mut solved, &seeds_of(&mut coarse_order))?;
-            kth_of(&solved).1
-        } else {
-            f64::INFINITY
+        // With blocks: every block's bound, and a real k-th distance from the entries of the
+        // blocks of least bound, which hold the query's nearest more often than not (the
+        // entries arranged, [`Index::arrange`]); the blocks past it are passed over.
+        let (limit, past) = match &block {
+            Some(block) if k > 0 => {
+                let mut blocks: Vec<(f64, usize)> = (0..self.entries.blocks())
+                    .into_par_iter()
+                    .map(|b| (block(self.entries.span(b)), b))
+                    .collect();
+                blocks.sort_unstable_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+                coarse_order.clear();
+                for &(_, b) in &blocks {
+                    if coarse_order.len() >= SEEDING * k {
+                        break;
+                    }
+                    let entries = b * BLOCK..((b + 1) * BLOCK).min(self.entries.len());
+                    coarse_order.extend(
+                        entries
+                            .map(|i| (self.entries.get(i), i))
+                            .filter(|&(e, _)| keep(e))
+                            .map(|(e, i)| (coarse(e, f64::INFINITY), i)),
+                    );
+                }
+                solve(&mut solved, &seeds_of(&mut coarse_order))?;
+                let kth = kth_of(&solved).1;
+                let mut past = vec![false; blocks.len()];
+                for (bound, b) in blocks {
+                    past[b] = bound > kth;
+                }
+                (kth, past)
+            }
+            _ => (f64::INFINITY, Vec::new()),
         };
-        pass(&mut coarse_order, 1, limit);
+        // The first bounds of every entry in `keep`, stopping past `limit`; an entry of a block
+        // past it is past it too.
+        (0..self.entries.len())
+            .into_par_iter()
+            .map(|i| {
+                let e = self.entries.get(i);
+                let bound = match keep(e) {
+                    false => f64::NAN,
+                    true if past.get(i / BLOCK) == Some(&true) => f64::INFINITY,
+                    true => coarse(e, limit),
+                };
+                (bound, i)
+            })
+            .collect_into_vec(&mut coarse_order);
+        coarse_order.retain(|(bound, _)| !bound.is_nan());
         let admitted = coarse_order.len();
         // Past a real k-th distance: never in the top `k`, not even by a tie.
         coarse_order.retain(|&(bound, _)| bound <= limit);

@@ -5,7 +5,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use crate::descriptor::lane_sum;
+use crate::descriptor::{lane_sum, Span};
 use crate::emd::{emd_flows, emd_matrix};
 use crate::params::SimilarityParams;
 use crate::signature::{quantise, Feature, Signature, BIN_SCALE};
@@ -334,12 +334,34 @@ const CENTROID_SLACK: f64 = 1e-5;
 /// The centroid half of [`lower_bound`], less [`CENTROID_SLACK`] for its single-precision
 /// means.
 pub fn centroid_bound(p: Centroid, q: Centroid, params: &SimilarityParams) -> f64 {
+    let sums = (lane_sum(p.0, q.0, SQUARED), lane_sum(p.1, q.1, ABSOLUTE));
+    centroid_of(p, sums, q.2, params)
+}
+
+/// Never above [`centroid_bound`] of `p` and any centroid in the boxes `spans` (ECC, region
+/// D2) whose count is in `counts`: the sums are [`Span::lane_sum`]'s, and the penalty,
+/// growing with the counts' ratio (its power is never negative), is the nearest count's.
+pub fn centroid_span_bound(
+    p: Centroid,
+    (ecc, d2): (&Span, &Span),
+    (least, greatest): (usize, usize),
+    params: &SimilarityParams,
+) -> f64 {
+    let sums = (ecc.lane_sum(p.0, SQUARED), d2.lane_sum(p.1, ABSOLUTE));
+    centroid_of(p, sums, p.2.max(least).min(greatest), params)
+}
+
+const SQUARED: fn(f32, f32) -> f32 = |a, b| (a - b) * (a - b);
+const ABSOLUTE: fn(f32, f32) -> f32 = |a, b| (a - b).abs();
+
+/// [`centroid_bound`] from its sums of squared ECC and absolute D2 differences, and the
+/// other side's count.
+fn centroid_of(p: Centroid, (ecc, d2): (f64, f64), count: usize, params: &SimilarityParams) -> f64 {
     let w = params.ecc_weight;
-    let ecc = lane_sum(p.0, q.0, |a, b| (a - b) * (a - b));
     let ecc = (ecc / p.0.len().max(1) as f64).sqrt();
-    let d2 = lane_sum(p.1, q.1, |a, b| (a - b).abs()) / 2.0;
+    let d2 = d2 / 2.0;
     let centroid = w * ecc + (1.0 - w) * d2 - CENTROID_SLACK;
-    penalty(p.2, q.2, params) * centroid.max(0.0)
+    penalty(p.2, count, params) * centroid.max(0.0)
 }
 
 /// Scalar projections of a feature, each 1-Lipschitz for the ground distance before its weight

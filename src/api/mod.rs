@@ -176,6 +176,8 @@ fn load(config: &Config, store: &dyn Store) -> Result<(Snapshot, usize, usize), 
         }
         Ok::<_, StartError>(())
     })?;
+    // Loaded by id: near models put together, for the rankings' block bounds.
+    snapshot.index.arrange();
     Ok((snapshot, stale_parameters, missing_descriptor))
 }
 

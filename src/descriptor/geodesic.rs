@@ -26,6 +26,7 @@ use glam::DVec3;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
+use super::Span;
 use crate::geodesic::{GeodesicScratch, Surface};
 use crate::mesh::{PreparedMesh, Topology};
 use crate::params::GeodesicRule;
@@ -123,6 +124,16 @@ impl Cumulative {
     /// partial sums in a fixed order: the same value everywhere, and it vectorises.
     pub fn distance(&self, other: &Self) -> f64 {
         super::lane_sum(&self.0, &other.0, |x, y| (x - y).abs()) / (2 * BINS) as f64
+    }
+
+    /// Never above [`Cumulative::distance`] to any descriptor in `span` ([`Span::lane_sum`]).
+    pub fn distance_to(&self, span: &Span) -> f64 {
+        span.lane_sum(&self.0, |x, y| (x - y).abs()) / (2 * BINS) as f64
+    }
+
+    /// What a [`Span`] of these holds.
+    pub fn values(&self) -> &[f32] {
+        &self.0
     }
 }
 

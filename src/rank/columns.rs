@@ -13,8 +13,8 @@ use std::sync::Arc;
 use rayon::prelude::*;
 
 use crate::descriptor::geodesic::Cumulative;
-use crate::descriptor::lfd::{LfdSketch, LfdSummary};
-use crate::descriptor::{GeodesicDescriptor, LightFieldDescriptor};
+use crate::descriptor::lfd::{LfdSketch, LfdSummary, SketchSpan};
+use crate::descriptor::{GeodesicDescriptor, LightFieldDescriptor, Span};
 use crate::params::{Params, SimilarityParams};
 use crate::signature::{Signature, Staleness};
 use crate::similarity::{Centroid, Features, Summary};
@@ -24,6 +24,113 @@ use super::{Compared, Holds, Method};
 
 /// Entries per chunk: a copy on write moves about a megabyte.
 const CHUNK: usize = 1024;
+
+/// Entries per block ([`BlockSpan`]), a divisor of [`CHUNK`]: entry `i` is in block
+/// `i / BLOCK`.
+pub const BLOCK: usize = 32;
+
+/// What the entries of a block hold, as boxes: a bound on a query's distance to all of them
+/// at once, which rejects the block when it is past a k-th distance. A part's box is `None`
+/// once an entry lacks the part (or has it at another length), and bounds leave it out. An
+/// entry replaced or taken out stays in the boxes, which then hold more than they must: still
+/// bounds, only looser, until the index is arranged again ([`super::Index::arrange`]).
+#[derive(Debug, Clone)]
+pub struct BlockSpan {
+    geodesic: Option<Span>,
+    /// The ECC and region-D2 means, and the least and greatest feature counts: `None` once an
+    /// entry has no features.
+    centroid: Option<(Span, Span, (usize, usize))>,
+    sketch: Option<SketchSpan>,
+}
+
+impl BlockSpan {
+    fn of(entry: Parts) -> Self {
+        let [geodesic, ecc, d2] = entry.vectors;
+        Self {
+            geodesic: geodesic.map(Span::of),
+            centroid: ecc.zip(d2).map(|(ecc, d2)| {
+                (
+                    Span::of(ecc),
+                    Span::of(d2),
+                    (entry.features, entry.features),
+                )
+            }),
+            sketch: entry.sketch.map(SketchSpan::of),
+        }
+    }
+
+    fn widen(&mut self, entry: Parts) {
+        fn keep<T>(part: &mut Option<T>, widened: impl FnOnce(&mut T) -> bool) {
+            if part.as_mut().is_some_and(|p| !widened(p)) {
+                *part = None;
+            }
+        }
+        let [geodesic, ecc, d2] = entry.vectors;
+        keep(&mut self.geodesic, |span| {
+            geodesic.is_some_and(|g| span.widen(g))
+        });
+        let count = entry.features;
+        keep(
+            &mut self.centroid,
+            |(ecc_span, d2_span, (least, greatest))| {
+                (*least, *greatest) = ((*least).min(count), (*greatest).max(count));
+                ecc.zip(d2)
+                    .is_some_and(|(ecc, d2)| ecc_span.widen(ecc) && d2_span.widen(d2))
+            },
+        );
+        keep(&mut self.sketch, |span| {
+            entry.sketch.inspect(|s| span.widen(s)).is_some()
+        });
+    }
+
+    pub fn geodesic(&self) -> Option<&Span> {
+        self.geodesic.as_ref()
+    }
+
+    /// The boxes of the ECC and region-D2 means, and the feature counts' range.
+    pub fn centroid(&self) -> Option<CentroidSpans<'_>> {
+        let (ecc, d2, counts) = self.centroid.as_ref()?;
+        Some(((ecc, d2), *counts))
+    }
+
+    pub fn sketch(&self) -> Option<&SketchSpan> {
+        self.sketch.as_ref()
+    }
+}
+
+/// The boxes of a block's ECC and region-D2 means, and its least and greatest feature counts:
+/// [`crate::similarity::centroid_span_bound`]'s side.
+pub type CentroidSpans<'a> = ((&'a Span, &'a Span), (usize, usize));
+
+/// What the hybrid's first bound compares of an entry: what [`BlockSpan`] boxes and
+/// [`super::arrange`] orders by.
+#[derive(Clone, Copy)]
+pub struct Parts<'a> {
+    /// The geodesic descriptor's cumulative sums, then the ECC and region-D2 means (`None`
+    /// without features).
+    pub vectors: [Option<&'a [f32]>; 3],
+    pub features: usize,
+    pub sketch: Option<&'a LfdSketch>,
+}
+
+impl<'a> Parts<'a> {
+    fn new(
+        geodesic: Option<&'a Cumulative>,
+        (ecc, d2, features): (&'a [f32], &'a [f32], usize),
+        sketch: Option<&'a LfdSketch>,
+    ) -> Self {
+        let with_features = features > 0;
+        Self {
+            vectors: [
+                geodesic.map(Cumulative::values),
+                with_features.then_some(ecc),
+                with_features.then_some(d2),
+            ],
+            features,
+            sketch,
+        }
+    }
+}
 
 /// Histograms of one chunk in one array, at a common stride (the longest row), each with its
 /// own length: what a full pass reads, without a pointer per row.
@@ -88,6 +195,8 @@ struct Chunk {
     d2: Rows,
     ecc_mean: Rows,
     d2_mean: Rows,
+    /// One per [`BLOCK`] of entries.
+    spans: Vec<BlockSpan>,
 }
 
 /// What the index keeps of one model, computed once when it is inserted.
@@ -144,6 +253,14 @@ impl Row {
     pub fn id(&self) -> &Arc<str> {
         &self.id
     }
+
+    fn parts(&self) -> Parts<'_> {
+        Parts::new(
+            self.geodesic.as_ref(),
+            (&self.centroid.0, &self.centroid.1, self.features.len()),
+            self.sketch.as_ref(),
+        )
+    }
 }
 
 impl Chunk {
@@ -160,6 +277,10 @@ impl Chunk {
                 column[slot] = value;
             }
         }
+        match self.spans.get_mut(slot / BLOCK) {
+            Some(span) => span.widen(row.parts()),
+            None => self.spans.push(BlockSpan::of(row.parts())),
+        }
         self.d2.set(slot, &row.d2);
         self.ecc_mean.set(slot, &row.centroid.0);
         self.d2_mean.set(slot, &row.centroid.1);
@@ -173,11 +294,38 @@ impl Chunk {
         put(&mut self.geodesic, slot, row.geodesic);
     }
 
+    fn parts(&self, slot: usize) -> Parts<'_> {
+        Parts::new(
+            self.geodesic[slot].as_ref(),
+            (
+                self.ecc_mean.get(slot),
+                self.d2_mean.get(slot),
+                self.features[slot].len(),
+            ),
+            self.sketches[slot].as_ref(),
+        )
+    }
+
+    /// Each block's boxes from its entries alone.
+    fn box_blocks(&mut self) {
+        let spans = (0..self.len())
+            .step_by(BLOCK)
+            .map(|first| {
+                let mut span = BlockSpan::of(self.parts(first));
+                for slot in first + 1..(first + BLOCK).min(self.len()) {
+                    span.widen(self.parts(slot));
+                }
+                span
+            })
+            .collect();
+        self.spans = spans;
+    }
+
     /// Takes the last entry out.
     fn pop(&mut self) -> Row {
         const TAKEN: &str = "a chunk in the index is never empty";
         let centroid = (self.ecc_mean.pop(), self.d2_mean.pop());
-        Row {
+        let row = Row {
             centroid,
             d2: self.d2.pop(),
             id: self.ids.pop().expect(TAKEN),
@@ -188,7 +336,12 @@ impl Chunk {
             sketch: self.sketches.pop().expect(TAKEN),
             lfd: self.lfd.pop().expect(TAKEN),
             geodesic: self.geodesic.pop().expect(TAKEN),
+        };
+        // The last block's first entry: the block is empty.
+        if self.len().is_multiple_of(BLOCK) {
+            self.spans.pop();
         }
+        row
     }
 }
 
@@ -204,6 +357,30 @@ impl<'a> Entry<'a> {
     /// Its number in the index.
     pub fn number(self) -> usize {
         self.number
+    }
+
+    pub fn parts(self) -> Parts<'a> {
+        self.chunk.parts(self.slot)
+    }
+
+    /// A copy of what the index keeps of it.
+    fn row(self) -> Row {
+        let (chunk, slot) = (self.chunk, self.slot);
+        Row {
+            id: chunk.ids[slot].clone(),
+            extraction: chunk.extractions[slot].clone(),
+            features: chunk.features[slot].clone(),
+            light_field: chunk.light_fields[slot].clone(),
+            d2: chunk.d2.get(slot).to_vec(),
+            summary: chunk.summaries[slot].clone(),
+            centroid: (
+                chunk.ecc_mean.get(slot).to_vec(),
+                chunk.d2_mean.get(slot).to_vec(),
+            ),
+            sketch: chunk.sketches[slot].clone(),
+            lfd: chunk.lfd[slot].clone(),
+            geodesic: chunk.geodesic[slot].clone(),
+        }
     }
 
     pub fn id(self) -> &'a Arc<str> {
@@ -334,13 +511,57 @@ impl Columns {
         Arc::make_mut(&mut self.chunks[i / CHUNK]).set(i % CHUNK, row);
     }
 
-    /// Removes entry `i`, moving the last entry into its place; returns the moved entry's id.
-    pub fn swap_remove(&mut self, i: usize) -> Option<Arc<str>> {
+    /// Blocks of [`BLOCK`] entries (the last may hold fewer).
+    pub fn blocks(&self) -> usize {
+        self.len.div_ceil(BLOCK)
+    }
+
+    /// What the entries of block `b` hold.
+    pub fn span(&self, b: usize) -> &BlockSpan {
+        let first = b * BLOCK;
+        &self.chunks[first / CHUNK].spans[first % CHUNK / BLOCK]
+    }
+
+    /// Puts entry `order[i]` at `i` for every `i` (a permutation), along its cycles one entry
+    /// at a time, not through a second copy of the index; then boxes each block anew.
+    pub fn permute(&mut self, order: &[usize]) {
+        let mut placed = vec![false; order.len()];
+        for start in 0..order.len() {
+            if placed[start] || order[start] == start {
+                continue;
+            }
+            let first = self.get(start).row();
+            let mut at = start;
+            loop {
+                placed[at] = true;
+                let from = order[at];
+                if from == start {
+                    self.set(at, first);
+                    break;
+                }
+                let row = self.get(from).row();
+                self.set(at, row);
+                at = from;
+            }
+        }
+        for chunk in &mut self.chunks {
+            Arc::make_mut(chunk).box_blocks();
+        }
+    }
+
+    /// Takes the last entry out.
+    fn pop(&mut self) -> Row {
         let last = Arc::make_mut(self.chunks.last_mut().expect("a chunk")).pop();
         self.len -= 1;
         if self.len.is_multiple_of(CHUNK) {
             self.chunks.pop();
         }
+        last
+    }
+
+    /// Removes entry `i`, moving the last entry into its place; returns the moved entry's id.
+    pub fn swap_remove(&mut self, i: usize) -> Option<Arc<str>> {
+        let last = self.pop();
         if i == self.len {
             return None;
         }

@@ -291,19 +291,26 @@ fn hybrid_pruning_never_changes_the_top_k() {
             index.partial(Method::Hybrid, &Scope::default()),
             1000usize.div_ceil(17)
         );
-        for (_, query) in &queries {
-            for k in [1, 10, 50] {
-                let fast = index.search(query, k, Method::Hybrid).expect("ranks");
-                let full = index
-                    .search_exhaustive(query, k, Method::Hybrid)
-                    .expect("ranks");
-                assert_eq!(fast.hits, full.hits, "k = {k}, {hybrid:?}");
-                assert_eq!(fast.evaluated + fast.pruned, collection.len());
-                pruned += fast.pruned;
+        // In insertion order, then arranged as the service does after a load (its blocks'
+        // bounds reject most of them).
+        for arranged in [false, true] {
+            if arranged {
+                index.arrange();
+            }
+            for (_, query) in &queries {
+                for k in [1, 10, 50] {
+                    let fast = index.search(query, k, Method::Hybrid).expect("ranks");
+                    let full = index
+                        .search_exhaustive(query, k, Method::Hybrid)
+                        .expect("ranks");
+                    assert_eq!(fast.hits, full.hits, "k = {k}, {hybrid:?}, {arranged}");
+                    assert_eq!(fast.evaluated + fast.pruned, collection.len());
+                    pruned += fast.pruned;
+                }
             }
         }
     }
-    let total = 4 * queries.len() * 3 * collection.len();
+    let total = 2 * 4 * queries.len() * 3 * collection.len();
     eprintln!("pruned {pruned} of {total}");
     assert!(pruned * 2 > total, "pruned only {pruned} of {total}");
 }
@@ -317,15 +324,19 @@ fn hybrid_defaults_are_the_tuned_setting() {
     assert_eq!(tuned.similarity.hybrid, HybridParams::default());
 }
 
-/// The index keeps its entries by column in chunks of 1 024: inserting, replacing and removing
-/// across chunk boundaries keeps every entry findable and every ranking equal to a full scan,
-/// and a scope leaves out the model asked about and what its filter refuses.
+/// The index keeps its entries by column in chunks of 1 024 (and blocks of 32): arranging,
+/// then inserting, replacing and removing across chunk boundaries keeps every entry findable
+/// and every ranking equal to a full scan, and a scope leaves out the model asked about and
+/// what its filter refuses.
 #[test]
 fn entries_survive_changes_across_chunks() {
     let mut collection = synthetic::collection(2600, 30, 8);
     synthetic::with_descriptors(&mut collection, 30, 9);
     let mut index = Index::new(Params::default().similarity);
-    for (id, s) in &collection {
+    for (n, (id, s)) in collection.iter().enumerate() {
+        if n == 2000 {
+            index.arrange();
+        }
         index.insert(id.clone(), s).expect("shelved");
     }
     // Removed: the first, the last, and a run across the first chunk boundary.
@@ -457,4 +468,83 @@ fn hits(ranking: &Ranking) -> Vec<(f64, &str)> {
         .iter()
         .map(|h| (h.distance, h.id.as_str()))
         .collect()
+}
+
+/// The boxes a ranking bounds a block of entries by never bound a query above its bound to any
+/// of the entries (so a block past the k-th distance holds no entry within it): the geodesic
+/// distance, the ECC centroid bound (with the count penalty) and the LFD sketch bound. Among
+/// the queries are the entries themselves, whose bounds are 0; the box of one entry bounds as
+/// the entry does, exactly.
+#[test]
+fn block_boxes_never_bound_above_their_entries() {
+    use salient::descriptor::lfd::SketchSpan;
+    use salient::descriptor::Span;
+    use salient::similarity::centroid_span_bound;
+
+    let mut collection = synthetic::collection(256, 8, 31);
+    synthetic::with_descriptors(&mut collection, 8, 32);
+    let mut params = Params::default().similarity;
+    params.penalty_power = 1.5;
+    let spanned = |mut vectors: Vec<&[f32]>| {
+        let mut span = Span::of(vectors.pop().expect("a block"));
+        assert!(vectors.into_iter().all(|v| span.widen(v)));
+        span
+    };
+    let (mut checked, mut positive) = (0, 0);
+    let mut rest = &collection[..];
+    for size in [1, 2, 32].into_iter().cycle() {
+        if rest.is_empty() {
+            break;
+        }
+        let block;
+        (block, rest) = rest.split_at(size.min(rest.len()));
+        let cumulative: Vec<_> = (block.iter())
+            .map(|(_, s)| s.geodesic.as_ref().expect("made").cumulative())
+            .collect();
+        let geodesic = spanned(cumulative.iter().map(|c| c.values()).collect());
+        let features: Vec<Features> = block
+            .iter()
+            .map(|(_, s)| Features::of(&s.features))
+            .collect();
+        let centroids: Vec<_> = features.iter().map(Features::centroid).collect();
+        let ecc = spanned(centroids.iter().map(|c| &c.0[..]).collect());
+        let d2 = spanned(centroids.iter().map(|c| &c.1[..]).collect());
+        let counts = features.iter().map(Features::len);
+        let counts = (counts.clone().min().unwrap(), counts.max().unwrap());
+        let sketches: Vec<_> = (block.iter())
+            .map(|(_, s)| s.lfd.as_ref().expect("made").sketch())
+            .collect();
+        let mut sketch = SketchSpan::of(&sketches[0]);
+        sketches.iter().for_each(|s| sketch.widen(s));
+        for (_, query) in collection.iter().step_by(7) {
+            let q = query.geodesic.as_ref().expect("made").cumulative();
+            let boxed = q.distance_to(&geodesic);
+            let q_features = Features::of(&query.features);
+            let q_centroid = q_features.centroid();
+            let q_centroid = (&q_centroid.0[..], &q_centroid.1[..], q_features.len());
+            let centroid_boxed = centroid_span_bound(q_centroid, (&ecc, &d2), counts, &params);
+            let q_sketch = query.lfd.as_ref().expect("made").sketch();
+            let sketch_boxed = q_sketch.span_bound(&sketch);
+            for (n, c) in cumulative.iter().enumerate() {
+                let (f, m) = (&features[n], &centroids[n]);
+                let centroid = centroid_bound(q_centroid, (&m.0, &m.1, f.len()), &params);
+                let bounds = [
+                    (boxed, q.distance(c)),
+                    (centroid_boxed, centroid),
+                    (sketch_boxed, q_sketch.lower_bound(&sketches[n])),
+                ];
+                for (k, (boxed, each)) in bounds.into_iter().enumerate() {
+                    assert!(boxed <= each, "part {k}: {boxed} > {each}");
+                    assert!(
+                        block.len() > 1 || boxed == each,
+                        "part {k}: {boxed} < {each}"
+                    );
+                    checked += 1;
+                    positive += usize::from(boxed > 0.0);
+                }
+            }
+        }
+    }
+    // The boxes do bound: many are above 0 (blocks of entries of every class).
+    assert!(positive * 4 > checked, "{positive} of {checked} above 0");
 }

@@ -466,26 +466,56 @@ impl LfdSketch {
     /// Never above [`LfdSummary::lower_bound`] of the same descriptors, so never above their
     /// distance.
     pub fn lower_bound(&self, other: &Self) -> f64 {
-        sketch_bound(&self.0, &other.0) as f64 / MAX_DISTANCE
+        sketch_bound(&self.0, (&other.0, &other.0)) as f64 / MAX_DISTANCE
+    }
+
+    /// Never above [`LfdSketch::lower_bound`] with any sketch in `span`.
+    pub fn span_bound(&self, span: &SketchSpan) -> f64 {
+        sketch_bound(&self.0, (&span.least, &span.greatest)) as f64 / MAX_DISTANCE
     }
 }
 
-/// The least over light fields `a` of `query` and lanes of `entry` of the summed group
-/// differences. Sums saturate at `u16::MAX`, which only lowers a bound. Plain lane loops
-/// that the compiler vectorises, built for AVX2 and chosen at run time where the processor
-/// has it (the SSE2 baseline otherwise).
+/// The least and the greatest of each value over a set of [`LfdSketch`]es: a box holding
+/// them, as [`crate::descriptor::Span`] is for vectors.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct SketchSpan {
+    least: [[u16; LANES]; SKETCH_GROUPS],
+    greatest: [[u16; LANES]; SKETCH_GROUPS],
+}
+
+impl SketchSpan {
+    pub fn of(sketch: &LfdSketch) -> Self {
+        Self {
+            least: sketch.0,
+            greatest: sketch.0,
+        }
+    }
+
+    pub fn widen(&mut self, sketch: &LfdSketch) {
+        for ((least, greatest), row) in self.least.iter_mut().zip(&mut self.greatest).zip(&sketch.0)
+        {
+            for ((l, g), &x) in least.iter_mut().zip(greatest.iter_mut()).zip(row) {
+                (*l, *g) = ((*l).min(x), (*g).max(x));
+            }
+        }
+    }
+}
+
+/// The least over light fields `a` of `query` and lanes of an entry of the summed group
+/// differences, the entry's values anywhere between `least` and `greatest` (equal for one
+/// entry): each difference is the distance to that interval, `least − x` or `x − greatest`
+/// saturated at 0, which is `|x − y|` when they are `y`. Sums saturate at `u16::MAX`, which
+/// only lowers a bound. Plain lane loops that the compiler vectorises, built for AVX2 and
+/// chosen at run time where the processor has it (the SSE2 baseline otherwise).
 #[multiversion::multiversion(targets("x86_64+avx2"))]
-fn sketch_bound(
-    query: &[[u16; LANES]; SKETCH_GROUPS],
-    entry: &[[u16; LANES]; SKETCH_GROUPS],
-) -> u16 {
+fn sketch_bound(query: &[[u16; LANES]; SKETCH_GROUPS], (least, greatest): SketchSide) -> u16 {
     let mut best = [u16::MAX; LANES];
     for field in 0..LIGHT_FIELDS {
         let mut sum = [0u16; LANES];
-        for (row, q) in entry.iter().zip(query) {
+        for ((low, high), q) in least.iter().zip(greatest).zip(query) {
             let x = q[field];
-            for (s, &y) in sum.iter_mut().zip(row) {
-                *s = s.saturating_add(x.abs_diff(y));
+            for ((s, &l), &h) in sum.iter_mut().zip(low).zip(high) {
+                *s = s.saturating_add(l.saturating_sub(x).max(x.saturating_sub(h)));
             }
         }
         for (b, s) in best.iter_mut().zip(sum) {
@@ -494,6 +524,13 @@ fn sketch_bound(
     }
     best.into_iter().min().unwrap_or(u16::MAX)
 }
+
+/// One side of a sketch bound: an entry's sketch twice, or a [`SketchSpan`]'s least and
+/// greatest values.
+type SketchSide<'a> = (
+    &'a [[u16; LANES]; SKETCH_GROUPS],
+    &'a [[u16; LANES]; SKETCH_GROUPS],
+);
 
 #[cfg(test)]
 mod tests {
