@@ -437,9 +437,12 @@ impl Index {
     pub fn arrange(&mut self) {
         let order = arrange::order(&self.entries, &self.params);
         self.entries.permute(&order);
-        self.position = (self.entries.iter())
-            .map(|e| (e.id().clone(), e.number()))
-            .collect();
+        // In place: a new map would leave the old one's memory to the allocator.
+        for e in self.entries.iter() {
+            if let Some(position) = self.position.get_mut(e.id()) {
+                *position = e.number();
+            }
+        }
     }
 
     /// Removes an entry; returns whether it was there.

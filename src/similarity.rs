@@ -289,7 +289,7 @@ pub fn explain(
 /// What [`lower_bound`] needs of a signature beside its [`Features::centroid`], computed once
 /// per stored model: per projection (four) the features' scalar projections, sorted, in one
 /// allocation.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, Default)]
 pub struct Summary {
     count: usize,
     values: Box<[f64]>,

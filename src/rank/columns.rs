@@ -363,26 +363,6 @@ impl<'a> Entry<'a> {
         self.chunk.parts(self.slot)
     }
 
-    /// A copy of what the index keeps of it.
-    fn row(self) -> Row {
-        let (chunk, slot) = (self.chunk, self.slot);
-        Row {
-            id: chunk.ids[slot].clone(),
-            extraction: chunk.extractions[slot].clone(),
-            features: chunk.features[slot].clone(),
-            light_field: chunk.light_fields[slot].clone(),
-            d2: chunk.d2.get(slot).to_vec(),
-            summary: chunk.summaries[slot].clone(),
-            centroid: (
-                chunk.ecc_mean.get(slot).to_vec(),
-                chunk.d2_mean.get(slot).to_vec(),
-            ),
-            sketch: chunk.sketches[slot].clone(),
-            lfd: chunk.lfd[slot].clone(),
-            geodesic: chunk.geodesic[slot].clone(),
-        }
-    }
-
     pub fn id(self) -> &'a Arc<str> {
         &self.chunk.ids[self.slot]
     }
@@ -530,7 +510,7 @@ impl Columns {
             if placed[start] || order[start] == start {
                 continue;
             }
-            let first = self.get(start).row();
+            let first = self.take_row(start);
             let mut at = start;
             loop {
                 placed[at] = true;
@@ -539,13 +519,34 @@ impl Columns {
                     self.set(at, first);
                     break;
                 }
-                let row = self.get(from).row();
+                let row = self.take_row(from);
                 self.set(at, row);
                 at = from;
             }
         }
         for chunk in &mut self.chunks {
             Arc::make_mut(chunk).box_blocks();
+        }
+    }
+
+    /// Moves entry `i` out, its heap parts moved and not copied, and leaves a placeholder for
+    /// [`Columns::set`] to overwrite.
+    fn take_row(&mut self, i: usize) -> Row {
+        let (chunk, slot) = (Arc::make_mut(&mut self.chunks[i / CHUNK]), i % CHUNK);
+        Row {
+            id: chunk.ids[slot].clone(),
+            extraction: chunk.extractions[slot].clone(),
+            features: std::mem::take(&mut chunk.features[slot]),
+            light_field: chunk.light_fields[slot].take(),
+            d2: chunk.d2.get(slot).to_vec(),
+            summary: std::mem::take(&mut chunk.summaries[slot]),
+            centroid: (
+                chunk.ecc_mean.get(slot).to_vec(),
+                chunk.d2_mean.get(slot).to_vec(),
+            ),
+            sketch: chunk.sketches[slot].take(),
+            lfd: chunk.lfd[slot].take(),
+            geodesic: chunk.geodesic[slot].take(),
         }
     }
 
