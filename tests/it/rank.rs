@@ -9,6 +9,21 @@ use salient::rank::{distance, fuse, Index, Method, Ranking, Scope};
 use salient::similarity::{centroid_bound, lower_bound, Features, Summary};
 use salient::{Params, Signature};
 
+/// Checks that `index`'s pruned ranking of `query` is a full scan's, every entry counted as
+/// evaluated or pruned; returns how many were pruned.
+fn pruned_as_a_full_scan(
+    index: &Index,
+    query: &Signature,
+    (k, method): (usize, Method),
+    setting: &str,
+) -> usize {
+    let fast = index.search(query, k, method).expect("ranks");
+    let full = index.search_exhaustive(query, k, method).expect("ranks");
+    assert_eq!(fast.hits, full.hits, "{setting}");
+    assert_eq!(fast.evaluated + fast.pruned, index.len());
+    fast.pruned
+}
+
 #[test]
 fn pruning_never_changes_the_top_k() {
     let collection = synthetic::collection(3000, 40, 1);
@@ -24,13 +39,8 @@ fn pruning_never_changes_the_top_k() {
         }
         for (_, query) in &queries {
             for k in [1, 5, 10, 50] {
-                let fast = index.search(query, k, Method::Ecc).expect("ranks");
-                let full = index
-                    .search_exhaustive(query, k, Method::Ecc)
-                    .expect("ranks");
-                assert_eq!(fast.hits, full.hits, "k = {k}, penalty {penalty}, W = {w}");
-                assert_eq!(fast.evaluated + fast.pruned, collection.len());
-                pruned += fast.pruned;
+                let setting = format!("k = {k}, penalty {penalty}, W = {w}");
+                pruned += pruned_as_a_full_scan(&index, query, (k, Method::Ecc), &setting);
             }
         }
     }
@@ -299,13 +309,8 @@ fn hybrid_pruning_never_changes_the_top_k() {
             }
             for (_, query) in &queries {
                 for k in [1, 10, 50] {
-                    let fast = index.search(query, k, Method::Hybrid).expect("ranks");
-                    let full = index
-                        .search_exhaustive(query, k, Method::Hybrid)
-                        .expect("ranks");
-                    assert_eq!(fast.hits, full.hits, "k = {k}, {hybrid:?}, {arranged}");
-                    assert_eq!(fast.evaluated + fast.pruned, collection.len());
-                    pruned += fast.pruned;
+                    let setting = format!("k = {k}, {hybrid:?}, arranged {arranged}");
+                    pruned += pruned_as_a_full_scan(&index, query, (k, Method::Hybrid), &setting);
                 }
             }
         }
