@@ -1,8 +1,8 @@
 //! Every model's stored patch descriptors ([`crate::descriptor::patch::Packed`], issue #14),
 //! which pick the models a partial search verifies, made in the background: off the upload's
-//! path, on the extraction pool once it has no request to serve, so an ingest runs at the
-//! rate it would without them and they follow it, and only on cores nothing else needs
-//! ([`super::pool::Pool::run_idle`]). Made for each model stored since, and at
+//! path, once the extraction pool has no request to serve, and only on cores nothing else
+//! needs ([`super::pool::Pool::run_idle`]), so an ingest runs at the rate it would without
+//! them and they follow it. Made for each model stored since, and at
 //! start for every model without them (stored by an earlier release, or with another
 //! layout). Meanwhile a model without patches is left to the fit
 //! ([`crate::rank::Index::search_partial`]).

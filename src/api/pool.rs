@@ -4,8 +4,9 @@
 //! limit is answered 503 too, while its job (which cannot be interrupted) keeps its permit
 //! until it ends, so the pool never runs more than `workers` jobs. A job whose caller gave up
 //! before a worker was free (the client went away, or the time limit passed) never runs.
-//! Background work ([`Pool::run_background`], [`Pool::run_idle`]) waits for a worker without
-//! taking a queue slot, and runs at a lower priority than requests.
+//! Background work runs at a lower priority than requests: on a worker, waited for without
+//! taking a queue slot ([`Pool::run_background`]), or on a thread of its own that runs only
+//! on idle cores ([`Pool::run_idle`]).
 //! Jobs run in the tracing span of their caller.
 
 use std::sync::Arc;
