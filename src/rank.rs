@@ -24,6 +24,7 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::descriptor::geodesic::Cumulative;
+use crate::descriptor::lfd::LfdQuery;
 use crate::descriptor::{histogram_l1, GeodesicDescriptor, LightFieldDescriptor};
 use crate::params::{HybridParams, Params, SimilarityParams};
 use crate::partial::{Fit, Part};
@@ -692,26 +693,19 @@ impl Index {
         let params = &self.params.hybrid_ecc();
         let prepared = Prepared::of(query);
         let summary = Summary::of(&prepared.features, params);
-        let lfd_query = query.lfd.as_ref().map(|d| (d.sketch(), d.summary()));
+        let lfd_query = query.lfd.as_ref().map(|d| (d.sketch(), LfdQuery::new(d)));
         let lfd_sketch = |e: Entry| match (&lfd_query, e.sketch()) {
             (Some((q, _)), Some(s)) if h.lfd.weight > 0.0 => Some(q.lower_bound(s)),
             _ => None,
         };
         let lfd_bound = |e: Entry| match (&lfd_query, e.lfd()) {
-            (Some((_, q)), Some(s)) if h.lfd.weight > 0.0 => Some(q.lower_bound(s)),
+            (Some((_, q)), Some(s)) if h.lfd.weight > 0.0 => Some(q.summary().lower_bound(s)),
             _ => None,
         };
         // `None` past `cutoff`.
-        let lfd_exact = |e: Entry, cutoff: f64| -> io::Result<Option<f64>> {
-            let (Some((query, (_, ours))), Some(theirs)) =
-                (query.lfd.as_ref().zip(lfd_query.as_ref()), e.lfd())
-            else {
-                return Ok(None);
-            };
-            let Some(descriptor) = e.light_field()? else {
-                return Ok(None);
-            };
-            Ok(query.distance_with(ours, &descriptor, theirs, cutoff))
+        let lfd_exact = |e: Entry, cutoff: f64| match &lfd_query {
+            Some((_, query)) => lfd_within(query, e, cutoff),
+            None => Ok(None),
         };
         // Left out (as `fuse` would leave it) when it weighs nothing, as in the defaults.
         let d2 = |e: Entry| (h.d2.weight > 0.0).then(|| histogram_l1(&query.d2, e.d2()));
@@ -881,7 +875,7 @@ impl Index {
                 pruned: 0,
             });
         };
-        let (sketch, summary) = (query.sketch(), query.summary());
+        let (sketch, prepared) = (query.sketch(), LfdQuery::new(query));
         const KEPT: &str = "kept entries have one";
         let admits = self.admits(scope);
         self.cascade(
@@ -891,11 +885,8 @@ impl Index {
                 |e, _| sketch.lower_bound(e.sketch().expect(KEPT)),
                 NO_BLOCKS,
             ),
-            |e, _| Some(summary.lower_bound(e.lfd().expect(KEPT))),
-            |e, kth| {
-                let descriptor = e.light_field()?.expect(KEPT);
-                Ok(query.distance_with(&summary, &descriptor, e.lfd().expect(KEPT), kth))
-            },
+            |e, _| Some(prepared.summary().lower_bound(e.lfd().expect(KEPT))),
+            |e, kth| lfd_within(&prepared, e, kth),
         )
     }
 
@@ -1104,6 +1095,16 @@ impl Index {
         scored[..k].sort_unstable_by(order);
         &scored[..k]
     }
+}
+
+/// The LFD distance from `query` to `e`, or `None` past `cutoff` or without a descriptor. The
+/// descriptor is read from the shelf only when `e`'s summary leaves some light-field pair
+/// within the cutoff.
+fn lfd_within(query: &LfdQuery, e: Entry, cutoff: f64) -> io::Result<Option<f64>> {
+    let Some(pairs) = e.lfd().and_then(|theirs| query.pairs(theirs, cutoff)) else {
+        return Ok(None);
+    };
+    Ok(e.light_field()?.and_then(|d| query.distance(pairs, &d)))
 }
 
 fn sort_hits(hits: &mut [Hit]) {

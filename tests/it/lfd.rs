@@ -6,8 +6,9 @@ use crate::shapes;
 use glam::{DMat3, DVec3};
 use salient::descriptor::lfd::zernike::orders;
 use salient::descriptor::lfd::{
-    fourier_descriptors, zernike_magnitudes, Cameras, ImageFeatures, LightFieldDescriptor,
-    Silhouette, COEFFICIENTS, IMAGE_SIZE, LIGHT_FIELDS, PACKED, ROTATIONS, VIEWS,
+    fourier_descriptors, zernike_magnitudes, Cameras, ImageFeatures, LfdQuery,
+    LightFieldDescriptor, Silhouette, COEFFICIENTS, IMAGE_SIZE, LIGHT_FIELDS, PACKED, ROTATIONS,
+    VIEWS,
 };
 use salient::mesh::{prepare, PreparedMesh, RawMesh};
 use salient::params::MeshParams;
@@ -263,8 +264,10 @@ fn a_rotated_copy_is_near_and_other_shapes_are_far() {
             assert!(bound <= distance, "{name}");
             // The sketch, coarser, is never above the summary's bound.
             assert!(d.sketch().lower_bound(&other.sketch()) <= bound, "{name}");
-            // With the summaries given, the same distance, or `None` just past a cutoff.
-            let with = |cutoff| d.distance_with(&d.summary(), other, &other.summary(), cutoff);
+            // Prepared once as a ranking's query: the same distance, or `None` just past a
+            // cutoff.
+            let query = LfdQuery::new(d);
+            let with = |cutoff| query.distance_within(other, &other.summary(), cutoff);
             assert_eq!(with(f64::INFINITY), Some(distance), "{name}");
             assert_eq!(with(distance), Some(distance), "{name}");
             if distance > 0.0 {
@@ -341,9 +344,18 @@ fn the_pruned_distance_is_the_least_over_every_pair_and_rotation() {
         assert_eq!(a.distance(&b), brute, "trial {trial}");
         assert_eq!(b.distance(&a), brute, "trial {trial}");
         // A cutoff at the distance keeps it; one just below gives none.
-        let with = |cutoff| a.distance_with(&a.summary(), &b, &b.summary(), cutoff);
+        let query = LfdQuery::new(&a);
+        let with = |cutoff| query.distance_within(&b, &b.summary(), cutoff);
         assert_eq!(with(brute), Some(brute), "trial {trial}");
         assert_eq!(with(brute * (1.0 - 1e-9)), None, "trial {trial}");
+        // Below the summaries' bound no light-field pair is left to visit, so a ranking
+        // need not read `b`; at the bound one is.
+        let bound = a.summary().lower_bound(&b.summary());
+        assert!(query.pairs(&b.summary(), bound).is_some(), "trial {trial}");
+        if bound > 0.0 {
+            let below = query.pairs(&b.summary(), bound * (1.0 - 1e-9));
+            assert!(below.is_none(), "trial {trial}");
+        }
     }
 }
 
