@@ -55,18 +55,14 @@ impl Features {
         self.count == 0
     }
 
-    fn ecc(&self, i: usize) -> &[f32] {
-        let len = self.ecc.len() / self.count;
-        &self.ecc[i * len..(i + 1) * len]
-    }
-
-    fn d2(&self, i: usize) -> &[u16] {
-        let len = self.d2.len() / self.count;
-        &self.d2[i * len..(i + 1) * len]
-    }
-
+    /// Each feature's ECC values and region bins, the rows' lengths divided out once rather
+    /// than per row (a cost matrix walks these for every pair of features).
     fn each(&self) -> impl Iterator<Item = (&[f32], &[u16])> {
-        (0..self.count).map(|i| (self.ecc(i), self.d2(i)))
+        // A feature has ECC values and bins (the parameters' checks); without features both
+        // arrays are empty and `max(1)` only keeps `chunks_exact` from a zero length.
+        let row = |len: usize| (len / self.count.max(1)).max(1);
+        let ecc = self.ecc.chunks_exact(row(self.ecc.len()));
+        ecc.zip(self.d2.chunks_exact(row(self.d2.len())))
     }
 }
 
