@@ -119,6 +119,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         )
         .with_writer(std::io::stderr)
         .init();
+    salient::api::pool::limit_malloc_arenas();
     let config = args.config()?;
     let store = SledStore::open(&config.data)
         .with_context(|| format!("cannot open the store in {}", config.data.display()))?;
