@@ -30,7 +30,8 @@ use crate::params::{HybridParams, Params, SimilarityParams};
 use crate::partial::{Fit, Part};
 use crate::signature::Signature;
 use crate::similarity::{
-    centroid_bound, centroid_span_bound, compare_costs, lower_bound, CostMatrix, Features, Summary,
+    centroid_bound, centroid_span_bound, compare_costs, explain_features, lower_bound, CostMatrix,
+    Features, Match, Summary,
 };
 
 mod arrange;
@@ -101,6 +102,44 @@ pub fn hybrid_parts(p: &Signature, q: &Signature, params: &SimilarityParams) -> 
     parts(p.compared(), q.compared(), params)
 }
 
+/// Why `q` is at its distance from `p`: what a result's explanation shows.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Explanation {
+    /// The distance by each method that can compare the two, in [`Method::ALL`]'s order.
+    pub distances: Vec<(Method, f64)>,
+    /// The hybrid's terms ([`contributions`] of its [`PARTS`]).
+    pub contributions: [Option<f64>; 4],
+    /// The optimal EMD plan between the salient features (paper Eq. 9).
+    pub matches: Vec<Match>,
+}
+
+/// The [`Explanation`] of `q`'s distance from `p`, the salient features' EMD solved once: the
+/// ECC method and the hybrid's ECC part differ only by the count penalty applied to it.
+pub fn explain(p: &Signature, q: &Signature, params: &SimilarityParams) -> Explanation {
+    let (prepared_p, prepared_q) = (Prepared::of(p), Prepared::of(q));
+    let (cp, cq) = (prepared_p.compared(), prepared_q.compared());
+    let (ecc, matches) = explain_features(cp.features, cq.features, params);
+    let parts = parts_with(cp, cq, params, || ecc.penalised(&params.hybrid_ecc()));
+    let distance = |method: Method| match method {
+        Method::Hybrid => fuse(&params.hybrid, parts),
+        Method::Ecc => ecc.sim,
+        other => PARTS
+            .iter()
+            .position(|&m| m == other)
+            .and_then(|k| parts[k])
+            .unwrap_or_else(|| compared_distance(other, cp, cq, params)),
+    };
+    Explanation {
+        distances: Method::ALL
+            .into_iter()
+            .filter(|m| m.comparable(p) && m.comparable(q))
+            .map(|m| (m, distance(m)))
+            .collect(),
+        contributions: contributions(&params.hybrid, parts),
+        matches,
+    }
+}
+
 /// What the methods compare of one model, borrowed from an index entry or from a
 /// [`Prepared`] signature: one implementation of each distance serves both.
 #[derive(Clone, Copy)]
@@ -151,9 +190,18 @@ fn compared_distance(method: Method, p: Compared, q: Compared, params: &Similari
 }
 
 fn parts(p: Compared, q: Compared, params: &SimilarityParams) -> [Option<f64>; 4] {
+    parts_with(p, q, params, || ecc_distance(p, q, &params.hybrid_ecc()))
+}
+
+/// [`parts`] with the ECC part's distance from `ecc`, called only when the hybrid weighs it.
+fn parts_with(
+    p: Compared,
+    q: Compared,
+    params: &SimilarityParams,
+    ecc: impl FnOnce() -> f64,
+) -> [Option<f64>; 4] {
     let h = &params.hybrid;
-    let ecc = (h.ecc.weight > 0.0 && !p.features.is_empty() && !q.features.is_empty())
-        .then(|| ecc_distance(p, q, &params.hybrid_ecc()));
+    let ecc = (h.ecc.weight > 0.0 && !p.features.is_empty() && !q.features.is_empty()).then(ecc);
     let lfd = (h.lfd.weight > 0.0).then(|| lfd_distance(p, q)).flatten();
     [
         ecc,
@@ -1113,4 +1161,51 @@ fn sort_hits(hits: &mut [Hit]) {
             .total_cmp(&b.distance)
             .then_with(|| a.id.cmp(&b.id))
     });
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::emd::SOLVED;
+    use crate::signature::Feature;
+
+    fn signature(features: usize, shift: f64) -> Signature {
+        let feature = |i: usize| Feature {
+            vertex: i as u32,
+            position: [i as f64, shift, 0.0],
+            position_normalized: [0.0; 3],
+            ecc: (0..10)
+                .map(|j| 1.0 + shift * (i + j) as f64 / 10.0)
+                .collect(),
+            d2: (0..8).map(|j| if j == i % 8 { 1.0 } else { 0.0 }).collect(),
+            region_size: 0.3,
+            region_area: 0.1,
+        };
+        Signature {
+            mesh_hash: Default::default(),
+            features: (0..features).map(feature).collect(),
+            d2: vec![0.25; 4],
+            lfd: None,
+            geodesic: None,
+            params: Params::default(),
+            stats: Default::default(),
+        }
+    }
+
+    #[test]
+    fn an_explanation_solves_the_features_emd_once_and_agrees_with_the_distances() {
+        let (p, q) = (signature(3, 0.0), signature(5, 0.4));
+        let params = SimilarityParams::default();
+        let solved = SOLVED.with(|n| n.get());
+        let explained = explain(&p, &q, &params);
+        assert_eq!(SOLVED.with(|n| n.get()) - solved, 1);
+        assert!(!explained.matches.is_empty());
+        for (method, d) in &explained.distances {
+            assert_eq!(*d, distance(*method, &p, &q, &params), "{method}");
+        }
+        assert_eq!(
+            explained.contributions,
+            contributions(&params.hybrid, hybrid_parts(&p, &q, &params))
+        );
+    }
 }

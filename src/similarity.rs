@@ -124,6 +124,14 @@ pub struct CostMatrix {
     cost: Vec<f64>,
 }
 
+impl Similarity {
+    /// `SIM` of the same EMD under other parameters' count penalty (Eq. 13): the ECC method
+    /// and the hybrid's ECC part differ only there ([`SimilarityParams::hybrid_ecc`]).
+    pub fn penalised(&self, params: &SimilarityParams) -> f64 {
+        penalty(self.m, self.n, params) * self.emd
+    }
+}
+
 impl CostMatrix {
     /// Eq. 13 from the EMD of these features.
     fn similarity(&self, emd: f64, params: &SimilarityParams) -> Similarity {
@@ -263,8 +271,20 @@ pub fn explain(
     q: &Signature,
     params: &SimilarityParams,
 ) -> (Similarity, Vec<Match>) {
-    let (p, q) = (Features::of(&p.features), Features::of(&q.features));
-    let costs = CostMatrix::new(&p, &q, params);
+    explain_features(
+        &Features::of(&p.features),
+        &Features::of(&q.features),
+        params,
+    )
+}
+
+/// [`explain`] of features in their compared form.
+pub fn explain_features(
+    p: &Features,
+    q: &Features,
+    params: &SimilarityParams,
+) -> (Similarity, Vec<Match>) {
+    let costs = CostMatrix::new(p, q, params);
     let (m, n) = (costs.m, costs.n);
     if m == 0 || n == 0 {
         return (costs.similarity(f64::INFINITY, params), Vec::new());

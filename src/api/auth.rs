@@ -1,5 +1,5 @@
 //! API keys: who may do what. A request names its key as `Authorization: Bearer KEY`; the key
-//! has a [`Scope`], and each route needs one ([`required_scope`], the policy in one place).
+//! has a [`Scope`], and each route needs one ([`Access`], declared beside the route).
 //!
 //! Keys come from the environment (`SALIENT_API_KEYS="write:KEY1,read:KEY2"`, for containers
 //! and secrets) and from a file of hashed keys (`--keys FILE`, lines `SCOPE SHA256 LABEL`,
@@ -8,6 +8,7 @@
 //! constant time. No key, part of one or hash appears in a response or a log line: a key is
 //! known in logs by its label.
 
+use std::collections::HashMap;
 use std::fmt;
 use std::path::Path;
 use std::str::FromStr;
@@ -18,6 +19,9 @@ use rand::RngCore;
 use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
 use subtle::ConstantTimeEq;
+use utoipa::openapi::path::{Operation, PathItem, Paths};
+use utoipa::openapi::security::SecurityRequirement;
+use utoipa::openapi::{ContentBuilder, Ref, ResponseBuilder};
 
 /// What a key allows; each scope includes the ones before it.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
@@ -55,18 +59,101 @@ impl FromStr for Scope {
     }
 }
 
-/// The scope a route needs, or `None` for the open ones (liveness, readiness, the API
-/// description). `route` is the matched pattern (`/v1/models/{id}`). Searching and
-/// extracting are `POST`s that change nothing, so they need only `read`.
-pub fn required_scope(method: &Method, route: &str, metrics_open: bool) -> Option<Scope> {
-    match route {
-        // The page holds no data: it asks for a key when the API does.
-        "/healthz" | "/readyz" | "/openapi.yaml" | "/" | "/page/{file}" => None,
-        "/metrics" => (!metrics_open).then_some(Scope::Admin),
-        admin if admin.starts_with("/v1/admin/") => Some(Scope::Admin),
-        "/v1/search" | "/v1/extract" | "/v1/preview" | "/v1/duplicates/check" => Some(Scope::Read),
-        _ if method == Method::GET || method == Method::HEAD => Some(Scope::Read),
-        _ => Some(Scope::Write),
+/// What an operation needs of the caller.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Access {
+    /// Nothing: liveness, readiness, the API description, the page (which holds no data and
+    /// asks for a key when the API does).
+    Open,
+    /// A key of at least this scope.
+    Key(Scope),
+}
+
+/// The access each operation needs, declared beside its route (`api::routes`): the one
+/// place both the key check ([`AccessTable::needed`]) and `openapi.yaml`'s security come from.
+#[derive(Debug, Clone, Default)]
+pub struct AccessTable {
+    needs: HashMap<(Method, String), Access>,
+}
+
+/// Every operation of a documented path, with its method.
+fn operations_mut(item: &mut PathItem) -> impl Iterator<Item = (Method, &mut Operation)> {
+    [
+        (Method::GET, &mut item.get),
+        (Method::PUT, &mut item.put),
+        (Method::POST, &mut item.post),
+        (Method::DELETE, &mut item.delete),
+        (Method::OPTIONS, &mut item.options),
+        (Method::HEAD, &mut item.head),
+        (Method::PATCH, &mut item.patch),
+        (Method::TRACE, &mut item.trace),
+    ]
+    .into_iter()
+    .filter_map(|(method, operation)| Some((method, operation.as_mut()?)))
+}
+
+/// Names `scope` in `operation`'s security, with the answers a key check may give.
+fn describe_key(operation: &mut Operation, scope: Scope) {
+    let error = |description: &str| {
+        ResponseBuilder::new()
+            .description(description)
+            .content(
+                "application/json",
+                ContentBuilder::new()
+                    .schema(Some(Ref::from_schema_name("ErrorBody")))
+                    .build(),
+            )
+            .build()
+    };
+    operation.security = Some(vec![SecurityRequirement::new(
+        "api_key",
+        [scope.to_string()],
+    )]);
+    let responses = &mut operation.responses.responses;
+    responses.insert("401".into(), error("No API key, or not a valid one").into());
+    responses.insert(
+        "403".into(),
+        error(&format!("The key's scope is below {scope}")).into(),
+    );
+    responses.insert(
+        "429".into(),
+        error("The key made more requests than `requests_per_minute` allows; retry after `Retry-After` seconds").into(),
+    );
+}
+
+impl AccessTable {
+    /// Records `access` for every operation of `paths`, and names a key's scope in their
+    /// description (the `api_key` security requirement).
+    pub fn declare(&mut self, access: Access, paths: &mut Paths) {
+        for (path, item) in paths.paths.iter_mut() {
+            for (method, operation) in operations_mut(item) {
+                self.needs.insert((method, path.clone()), access);
+                if let Access::Key(scope) = access {
+                    describe_key(operation, scope);
+                }
+            }
+        }
+    }
+
+    /// Records `access` for a route outside the API's description (the page).
+    pub fn declare_route(&mut self, method: Method, route: &str, access: Access) {
+        self.needs.insert((method, route.to_string()), access);
+    }
+
+    /// The scope a request needs, `None` for an open operation. `route` is the matched pattern
+    /// (`/v1/models/{id}`); `HEAD` needs what `GET` does. An operation nobody declared needs
+    /// `admin`: a route added without its access is closed, never open.
+    pub fn needed(&self, method: &Method, route: &str) -> Option<Scope> {
+        let method = if method == Method::HEAD {
+            Method::GET
+        } else {
+            method.clone()
+        };
+        match self.needs.get(&(method, route.to_string())) {
+            Some(Access::Open) => None,
+            Some(Access::Key(scope)) => Some(*scope),
+            None => Some(Scope::Admin),
+        }
     }
 }
 
@@ -219,23 +306,24 @@ mod tests {
     use super::*;
 
     #[test]
-    fn routes_need_the_scope_of_what_they_do() {
-        let get = |route| required_scope(&Method::GET, route, false);
-        let post = |route| required_scope(&Method::POST, route, false);
-        assert_eq!(get("/healthz"), None);
-        assert_eq!(get("/openapi.yaml"), None);
-        assert_eq!(get("/metrics"), Some(Scope::Admin));
-        assert_eq!(required_scope(&Method::GET, "/metrics", true), None);
-        assert_eq!(get("/v1/models/{id}"), Some(Scope::Read));
-        assert_eq!(post("/v1/search"), Some(Scope::Read));
-        assert_eq!(post("/v1/extract"), Some(Scope::Read));
-        assert_eq!(post("/v1/models"), Some(Scope::Write));
+    fn operations_need_what_they_declare_and_undeclared_ones_need_admin() {
+        let mut access = AccessTable::default();
+        access.declare_route(Method::GET, "/v1/models/{id}", Access::Key(Scope::Read));
+        access.declare_route(Method::GET, "/healthz", Access::Open);
         assert_eq!(
-            required_scope(&Method::DELETE, "/v1/models/{id}", false),
-            Some(Scope::Write)
+            access.needed(&Method::GET, "/v1/models/{id}"),
+            Some(Scope::Read)
         );
-        assert_eq!(post("/v1/admin/reindex"), Some(Scope::Admin));
-        assert_eq!(get("/v1/admin/reindex"), Some(Scope::Admin));
+        assert_eq!(
+            access.needed(&Method::HEAD, "/v1/models/{id}"),
+            Some(Scope::Read)
+        );
+        assert_eq!(access.needed(&Method::GET, "/healthz"), None);
+        assert_eq!(
+            access.needed(&Method::PATCH, "/v1/models/{id}"),
+            Some(Scope::Admin)
+        );
+        assert_eq!(access.needed(&Method::GET, "/v1/new"), Some(Scope::Admin));
         assert!(Scope::Read < Scope::Write && Scope::Write < Scope::Admin);
     }
 

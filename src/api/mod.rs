@@ -36,14 +36,14 @@ use tower_http::cors::{AllowOrigin, CorsLayer};
 use tower_http::request_id::{MakeRequestUuid, PropagateRequestIdLayer, SetRequestIdLayer};
 use tower_http::trace::TraceLayer;
 use utoipa::OpenApi;
-use utoipa_axum::router::OpenApiRouter;
+use utoipa_axum::router::{OpenApiRouter, UtoipaMethodRouter};
 
 use crate::mesh::Format;
 use crate::model::Upload;
 use crate::pipeline::{signature_of_file, Extent};
 use crate::signature::{Signature, Staleness};
 use crate::store::{Store, StoreError};
-use auth::{required_scope, KeyError, KeySet};
+use auth::{Access, AccessTable, KeyError, KeySet};
 use catalog::{Catalog, Snapshot};
 pub use config::Config;
 use error::AppError;
@@ -422,14 +422,9 @@ impl App {
 )]
 struct ApiDoc;
 
-/// Adds the API-key scheme, and on every operation the scope [`auth::required_scope`] gives
-/// it with its 401 and 403 answers: the description follows the policy instead of repeating
-/// it. Applied to the whole document, once the routes are in it.
+/// Adds the API-key scheme that each operation's security names ([`AccessTable::declare`]).
 fn describe_security(api: &mut utoipa::openapi::OpenApi) {
-    use utoipa::openapi::security::{
-        HttpAuthScheme, HttpBuilder, SecurityRequirement, SecurityScheme,
-    };
-    use utoipa::openapi::{ContentBuilder, Ref, ResponseBuilder};
+    use utoipa::openapi::security::{HttpAuthScheme, HttpBuilder, SecurityScheme};
     let components = api.components.get_or_insert_with(Default::default);
     components.add_security_scheme(
         "api_key",
@@ -442,44 +437,6 @@ fn describe_security(api: &mut utoipa::openapi::OpenApi) {
             .build(),
         ),
     );
-    let error = |description: &str| {
-        ResponseBuilder::new()
-            .description(description)
-            .content(
-                "application/json",
-                ContentBuilder::new()
-                    .schema(Some(Ref::from_schema_name("ErrorBody")))
-                    .build(),
-            )
-            .build()
-    };
-    for (path, item) in api.paths.paths.iter_mut() {
-        let operations = [
-            (Method::GET, &mut item.get),
-            (Method::POST, &mut item.post),
-            (Method::DELETE, &mut item.delete),
-        ];
-        for (method, operation) in operations {
-            let Some(operation) = operation else { continue };
-            let Some(scope) = required_scope(&method, path, false) else {
-                continue;
-            };
-            operation.security = Some(vec![SecurityRequirement::new(
-                "api_key",
-                [scope.to_string()],
-            )]);
-            let responses = &mut operation.responses.responses;
-            responses.insert("401".into(), error("No API key, or not a valid one").into());
-            responses.insert(
-                "403".into(),
-                error(&format!("The key's scope is below {scope}")).into(),
-            );
-            responses.insert(
-                "429".into(),
-                error("The key made more requests than `requests_per_minute` allows; retry after `Retry-After` seconds").into(),
-            );
-        }
-    }
 }
 
 /// The operations whose body is a mesh upload ([`upload::MeshUpload`]): the file raw with its
@@ -520,39 +477,67 @@ fn describe_uploads(api: &mut utoipa::openapi::OpenApi) {
 }
 
 /// The routes and their OpenAPI description, from the same handler annotations.
-fn routes() -> OpenApiRouter<AppState> {
-    OpenApiRouter::with_openapi(ApiDoc::openapi())
-        .routes(utoipa_axum::routes!(models::add_model, models::list_models))
-        .routes(utoipa_axum::routes!(
-            models::get_model,
-            models::delete_model,
-            models::patch_model
-        ))
-        .routes(utoipa_axum::routes!(models::get_signature))
-        .routes(utoipa_axum::routes!(files::get_file))
-        .routes(utoipa_axum::routes!(files::get_resource))
-        .routes(utoipa_axum::routes!(previews::get_thumbnail))
-        .routes(utoipa_axum::routes!(previews::get_preview))
-        .routes(utoipa_axum::routes!(previews::query_preview))
-        .routes(utoipa_axum::routes!(previews::compare))
-        .routes(utoipa_axum::routes!(search::similar))
-        .routes(utoipa_axum::routes!(search::search))
-        .routes(utoipa_axum::routes!(search::extract))
-        .routes(utoipa_axum::routes!(duplicates::list_duplicates))
-        .routes(utoipa_axum::routes!(duplicates::check_duplicates))
-        .routes(utoipa_axum::routes!(
-            reindex::start_reindex,
-            reindex::get_reindex
-        ))
-        .routes(utoipa_axum::routes!(ops::healthz))
-        .routes(utoipa_axum::routes!(ops::readyz))
-        .routes(utoipa_axum::routes!(ops::metrics))
-        .routes(utoipa_axum::routes!(ops::openapi_yaml))
+fn routes() -> Routes {
+    use auth::Access::{Key, Open};
+    use auth::Scope::{Admin, Read, Write};
+    use utoipa_axum::routes;
+    // Searching, extracting and checking for duplicates are `POST`s that change nothing: `read`.
+    Routes::new(ApiDoc::openapi())
+        .with(Key(Write), routes!(models::add_model))
+        .with(Key(Read), routes!(models::list_models))
+        .with(Key(Read), routes!(models::get_model))
+        .with(
+            Key(Write),
+            routes!(models::delete_model, models::patch_model),
+        )
+        .with(Key(Read), routes!(models::get_signature))
+        .with(Key(Read), routes!(files::get_file))
+        .with(Key(Read), routes!(files::get_resource))
+        .with(Key(Read), routes!(previews::get_thumbnail))
+        .with(Key(Read), routes!(previews::get_preview))
+        .with(Key(Read), routes!(previews::query_preview))
+        .with(Key(Read), routes!(previews::compare))
+        .with(Key(Read), routes!(search::similar))
+        .with(Key(Read), routes!(search::search))
+        .with(Key(Read), routes!(search::extract))
+        .with(Key(Read), routes!(duplicates::list_duplicates))
+        .with(Key(Read), routes!(duplicates::check_duplicates))
+        .with(
+            Key(Admin),
+            routes!(reindex::start_reindex, reindex::get_reindex),
+        )
+        .with(Open, routes!(ops::healthz))
+        .with(Open, routes!(ops::readyz))
+        .with(Key(Admin), routes!(ops::metrics))
+        .with(Open, routes!(ops::openapi_yaml))
+}
+
+/// The routes, their OpenAPI description and the access each needs, built together.
+struct Routes {
+    router: OpenApiRouter<AppState>,
+    access: AccessTable,
+}
+
+impl Routes {
+    fn new(api: utoipa::openapi::OpenApi) -> Self {
+        Self {
+            router: OpenApiRouter::with_openapi(api),
+            access: AccessTable::default(),
+        }
+    }
+
+    /// Adds the operations of `routes`, each needing `access`.
+    fn with(mut self, access: Access, routes: UtoipaMethodRouter<AppState>) -> Self {
+        let (schemas, mut paths, method_router) = routes;
+        self.access.declare(access, &mut paths);
+        self.router = self.router.routes((schemas, paths, method_router));
+        self
+    }
 }
 
 /// The OpenAPI document of the service, as committed in `openapi.yaml`.
 pub fn openapi_yaml() -> String {
-    let (_, mut api) = routes().split_for_parts();
+    let (_, mut api) = routes().router.split_for_parts();
     describe_uploads(&mut api);
     describe_security(&mut api);
     api.to_yaml().expect("the OpenAPI document serialises")
@@ -561,11 +546,17 @@ pub fn openapi_yaml() -> String {
 /// The service as a router, ready to serve or to drive from tests.
 pub fn app(state: AppState) -> Router {
     let config = &state.config;
-    let (router, _) = routes().split_for_parts();
+    let Routes { router, mut access } = routes();
+    let (router, _) = router.split_for_parts();
     // The page is not part of the API's description.
     let router = router
         .route("/", axum::routing::get(page::index))
         .route("/page/{file}", axum::routing::get(page::file));
+    access.declare_route(Method::GET, "/", Access::Open);
+    access.declare_route(Method::GET, "/page/{file}", Access::Open);
+    if config.metrics_open {
+        access.declare_route(Method::GET, "/metrics", Access::Open);
+    }
     let cors = match config.cors_origins.as_slice() {
         [] => CorsLayer::new(),
         [any] if any == "*" => CorsLayer::new().allow_origin(AllowOrigin::any()),
@@ -581,7 +572,10 @@ pub fn app(state: AppState) -> Router {
     let request_id = HeaderName::from_static("x-request-id");
     router
         .layer(DefaultBodyLimit::max(config.max_body_bytes))
-        .layer(middleware::from_fn_with_state(state.clone(), authorize))
+        .layer(middleware::from_fn_with_state(
+            (state.clone(), Arc::new(access)),
+            authorize,
+        ))
         .layer(middleware::from_fn_with_state(
             state.clone(),
             count_requests,
@@ -620,14 +614,16 @@ fn request_span(request: &Request) -> tracing::Span {
 /// Lets a request through if its key's scope covers what the route needs
 /// ([`auth::required_scope`]); a server without keys (loopback, or `--allow-anonymous`) lets
 /// everyone through. The key's label goes into the request's span, the key nowhere.
-async fn authorize(State(app): State<AppState>, request: Request, next: Next) -> Response {
-    let route = request
+async fn authorize(
+    State((app, access)): State<(AppState, Arc<AccessTable>)>,
+    request: Request,
+    next: Next,
+) -> Response {
+    // An unmatched request gets the router's 404 whoever asks.
+    let needed = request
         .extensions()
         .get::<MatchedPath>()
-        .map(|p| p.as_str().to_string());
-    let needed = route
-        .as_deref()
-        .and_then(|route| required_scope(request.method(), route, app.config.metrics_open));
+        .and_then(|route| access.needed(request.method(), route.as_str()));
     let keys = app.keys.load();
     let Some(needed) = needed.filter(|_| !keys.is_empty()) else {
         return next.run(request).await;

@@ -18,11 +18,8 @@ use crate::model::Upload;
 use crate::params::SimilarityParams;
 use crate::partial::{by_residual, nearest_first, Part, Probe, Target};
 use crate::pipeline::Extent;
-use crate::rank::{
-    contributions, distance, hybrid_parts, Hit, Method, PartRanking, Ranking, Scope, PARTS,
-};
+use crate::rank::{explain, Hit, Method, PartRanking, Ranking, Scope, PARTS};
 use crate::signature::Signature;
-use crate::similarity::explain;
 use crate::store::{Derived, Store, StoreResult};
 
 /// Query of the search endpoints.
@@ -192,35 +189,32 @@ pub struct SearchResponse {
     pub timings: Timings,
 }
 
-/// The explanation of `result`'s distance from `query`.
+/// The explanation of `result`'s distance from `query` ([`crate::rank::explain`]).
 fn explanation(query: &Signature, result: &Signature, params: &SimilarityParams) -> Explanation {
-    let distances = Method::ALL
-        .into_iter()
-        .filter(|m| m.comparable(query) && m.comparable(result))
-        .map(|m| (m.to_string(), distance(m, query, result, params)))
-        .collect();
-    let (_, matches) = explain(query, result, params);
-    let matches = matches
-        .into_iter()
-        .map(|m| FeatureMatch {
-            query: m.p,
-            result: m.q,
-            mass: m.mass,
-            ground_distance: m.ground_distance,
-            query_position: query.features[m.p].position,
-            result_position: result.features[m.q].position,
-        })
-        .collect();
-    let parts = hybrid_parts(query, result, params);
-    let contributions = PARTS
-        .into_iter()
-        .zip(contributions(&params.hybrid, parts))
-        .filter_map(|(m, c)| Some((m.to_string(), c?)))
-        .collect();
+    let explained = explain(query, result, params);
     Explanation {
-        distances,
-        contributions,
-        matches,
+        distances: explained
+            .distances
+            .into_iter()
+            .map(|(m, d)| (m.to_string(), d))
+            .collect(),
+        contributions: PARTS
+            .into_iter()
+            .zip(explained.contributions)
+            .filter_map(|(m, c)| Some((m.to_string(), c?)))
+            .collect(),
+        matches: explained
+            .matches
+            .into_iter()
+            .map(|m| FeatureMatch {
+                query: m.p,
+                result: m.q,
+                mass: m.mass,
+                ground_distance: m.ground_distance,
+                query_position: query.features[m.p].position,
+                result_position: result.features[m.q].position,
+            })
+            .collect(),
     }
 }
 
@@ -438,30 +432,57 @@ impl App {
     }
 }
 
+/// A whole-model ranking's options, checked before anything is extracted or read: a bad
+/// query costs no extraction.
+struct WholeQuery {
+    k: usize,
+    method: Method,
+    params: SimilarityParams,
+    explain: bool,
+    tag: Option<String>,
+}
+
+impl WholeQuery {
+    fn of(app: &AppState, q: SearchQuery) -> Result<Self, AppError> {
+        let k = requested_k(app, &q)?;
+        let mut params = app.config.params.similarity.clone();
+        if let Some(w) = q.w {
+            if !(0.0..=1.0).contains(&w) {
+                return Err(AppError::bad_request(
+                    "invalid_query",
+                    "w must be in [0, 1]",
+                ));
+            }
+            params.ecc_weight = w;
+        }
+        Ok(Self {
+            k,
+            method: q.method.unwrap_or_default(),
+            params,
+            explain: q.explain.unwrap_or(false),
+            tag: q.tag,
+        })
+    }
+}
+
 /// Ranks the catalog against `query` off the async threads.
 async fn rank(
     app: &AppState,
     query: Arc<Signature>,
-    q: SearchQuery,
+    q: WholeQuery,
     exclude: Option<ModelId>,
     clock: Instant,
     extract_ms: f64,
 ) -> Result<Json<SearchResponse>, AppError> {
-    let k = requested_k(app, &q)?;
-    let method = q.method.unwrap_or_default();
-    let mut params = app.config.params.similarity.clone();
-    if let Some(w) = q.w {
-        if !(0.0..=1.0).contains(&w) {
-            return Err(AppError::bad_request(
-                "invalid_query",
-                "w must be in [0, 1]",
-            ));
-        }
-        params.ecc_weight = w;
-    }
+    let WholeQuery {
+        k,
+        method,
+        params,
+        explain: explain_hits,
+        tag,
+    } = q;
     let search_clock = Instant::now();
     let query_features = query.features.len();
-    let explain_hits = q.explain.unwrap_or(false);
     let query_description = explain_hits.then(|| QueryFeatures {
         features: query
             .features
@@ -472,7 +493,6 @@ async fn rank(
             })
             .collect(),
     });
-    let tag = q.tag.clone();
     let explained = explain_hits.then(|| (query.clone(), params.clone()));
     let results = app
         .read_catalog(move |catalog| {
@@ -567,15 +587,14 @@ pub async fn search(
             "part_scale applies to mode=partial only",
         ));
     }
+    let q = WholeQuery::of(&app, q)?;
     // A method that compares no salient features (and no explanation, which shows every
     // method's distance) needs no ECC of the upload: most of an extraction's cost.
-    let method = q.method.unwrap_or_default();
-    let extent =
-        if q.explain.unwrap_or(false) || method.compares_features(&app.config.params.similarity) {
-            Extent::Full
-        } else {
-            Extent::Global
-        };
+    let extent = if q.explain || q.method.compares_features(&app.config.params.similarity) {
+        Extent::Full
+    } else {
+        Extent::Global
+    };
     let signature = app.extract_query(Arc::new(upload.upload), extent).await?;
     let extract_ms = clock.elapsed().as_secs_f64() * 1e3;
     rank(&app, signature, q, None, clock, extract_ms).await
@@ -606,6 +625,7 @@ pub async fn similar(
             "a stored model is a whole model: mode=partial applies to POST /v1/search",
         ));
     }
+    let q = WholeQuery::of(&app, q)?;
     let clock = Instant::now();
     let stored = id.clone();
     let signature = app
@@ -613,7 +633,7 @@ pub async fn similar(
         .await?
         .map(Arc::new)
         .ok_or_else(|| no_model(&id))?;
-    let method = q.method.unwrap_or_default();
+    let method = q.method;
     if !method.comparable(&signature) {
         return Err(AppError::Conflict(format!(
             "model {:?} was stored without the {method} descriptor; it is re-extracted in the background (see GET /v1/admin/reindex; POST it to start)",

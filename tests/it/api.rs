@@ -734,6 +734,42 @@ async fn original_files_come_back_byte_for_byte() {
 }
 
 /// Name, tags and class change without re-extraction; a bad patch is a 400.
+/// How many extractions the service has run, from `/metrics`.
+async fn extractions(app: &TestApp) -> u64 {
+    let metrics = app.get("/metrics").send().await.text();
+    metrics
+        .lines()
+        .find_map(|l| l.strip_prefix("salient_extraction_seconds_count "))
+        .expect("the extraction histogram is exported")
+        .parse()
+        .unwrap()
+}
+
+/// A search's query is checked before its upload is extracted: a bad `k` or `w` costs no
+/// extraction.
+#[tokio::test]
+async fn a_bad_search_query_is_refused_before_any_extraction() {
+    let app = TestApp::new();
+    let horse = fixture("capod_horse_m155.obj");
+    let search = |query: &str| {
+        app.post(format!("/v1/search?{query}"))
+            .header("content-type", "model/obj")
+            .body(horse.clone())
+            .send()
+    };
+    for query in ["k=0", "k=1000000", "w=2", "w=-0.5", "method=ecc&k=0"] {
+        expect_error(
+            search(query).await,
+            StatusCode::BAD_REQUEST,
+            "invalid_query",
+        )
+        .await;
+        assert_eq!(extractions(&app).await, 0, "{query}");
+    }
+    assert_eq!(search("k=3").await.status, StatusCode::OK);
+    assert_eq!(extractions(&app).await, 1);
+}
+
 #[tokio::test]
 async fn a_patch_edits_fields_without_re_extracting() {
     let app = TestApp::new();
@@ -746,15 +782,7 @@ async fn a_patch_edits_fields_without_re_extracting() {
         .await
         .json();
     let signature = app.get_json("/v1/models/horse/signature").await;
-    let extractions = || async {
-        let metrics = app.get("/metrics").send().await.text();
-        metrics
-            .lines()
-            .find(|l| l.starts_with("salient_extraction_seconds_count"))
-            .unwrap()
-            .to_string()
-    };
-    let before = extractions().await;
+    let before = extractions(&app).await;
     let patched = app
         .request_with_method("PATCH", "/v1/models/horse")
         .header("content-type", "application/json")
@@ -769,7 +797,7 @@ async fn a_patch_edits_fields_without_re_extracting() {
     assert_eq!(patched["content_hash"], added["content_hash"]);
     assert_eq!(app.get_json("/v1/models/horse").await, patched);
     assert_eq!(app.get_json("/v1/models/horse/signature").await, signature);
-    assert_eq!(extractions().await, before, "nothing was re-extracted");
+    assert_eq!(extractions(&app).await, before, "nothing was re-extracted");
     let tagged = app.get_json("/v1/models?tag=capod").await;
     assert_eq!(tagged["models"][0]["id"], "horse");
 

@@ -126,6 +126,15 @@ async fn each_route_needs_its_scope() {
         app.get("/metrics").bearer(ADMIN).send().await.status,
         StatusCode::OK
     );
+    let patch = |key: &'static str| {
+        app.request_with_method("PATCH", "/v1/models/horse")
+            .bearer(key)
+            .header("content-type", "application/json")
+            .body(r#"{"class": "horse"}"#)
+            .send()
+    };
+    expect_error(&patch(READ).await, StatusCode::FORBIDDEN, "forbidden");
+    assert_eq!(patch(WRITE).await.status, StatusCode::OK);
     assert_eq!(
         app.delete("/v1/models/horse")
             .bearer(WRITE)

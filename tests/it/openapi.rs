@@ -63,3 +63,41 @@ async fn every_documented_operation_is_routed() {
     }
     assert_eq!(operations, 23, "documented operations");
 }
+
+/// Every operation names the scope its route declares, with the 401 and 403 a key check may
+/// answer; only liveness, readiness and the description itself are open.
+#[test]
+fn every_operation_has_its_security() {
+    let spec: serde_json::Value = serde_yaml_ng::from_str(&openapi_yaml()).unwrap();
+    let open = [
+        ("get", "/healthz"),
+        ("get", "/readyz"),
+        ("get", "/openapi.yaml"),
+    ];
+    let mut scoped = 0;
+    for (path, item) in spec["paths"].as_object().unwrap() {
+        for (method, operation) in item.as_object().unwrap() {
+            if open.contains(&(method.as_str(), path.as_str())) {
+                assert!(operation.get("security").is_none(), "{method} {path}");
+                continue;
+            }
+            let scopes = &operation["security"][0]["api_key"];
+            assert!(
+                matches!(scopes[0].as_str(), Some("read" | "write" | "admin")),
+                "{method} {path} names no scope"
+            );
+            for status in ["401", "403", "429"] {
+                assert!(
+                    operation["responses"].get(status).is_some(),
+                    "{method} {path} lacks {status}"
+                );
+            }
+            scoped += 1;
+        }
+    }
+    assert_eq!(scoped, 20);
+    assert_eq!(
+        spec["paths"]["/v1/models/{id}"]["patch"]["security"][0]["api_key"][0],
+        "write"
+    );
+}
