@@ -8,9 +8,9 @@
 use std::path::PathBuf;
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
-use salient::mesh::load_path;
-use salient::pipeline::extract;
-use salient::{Limits, Params};
+use salient_core::mesh::load_path;
+use salient_core::pipeline::extract;
+use salient_core::{Limits, Params};
 
 fn mesh_path() -> PathBuf {
     std::env::var_os("SALIENT_BENCH_MESH").map_or_else(

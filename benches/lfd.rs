@@ -17,12 +17,12 @@ use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
-use salient::collection::find_meshes;
-use salient::descriptor::lfd::{ImageFeatures, LIGHT_FIELDS};
-use salient::descriptor::LightFieldDescriptor;
-use salient::mesh::{load_path, prepare, PreparedMesh};
-use salient::rank::{Index, Method};
-use salient::{Limits, Params};
+use salient_core::collection::find_meshes;
+use salient_core::descriptor::lfd::{ImageFeatures, LIGHT_FIELDS};
+use salient_core::descriptor::LightFieldDescriptor;
+use salient_core::mesh::{load_path, prepare, PreparedMesh};
+use salient_core::rank::{Index, Method};
+use salient_core::{Limits, Params};
 
 fn prepared(path: PathBuf) -> PreparedMesh {
     let raw = load_path(&path, &Limits::default())

@@ -37,8 +37,8 @@ use std::time::{Duration, Instant};
 use glam::DVec3;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-use salient::rank::Method;
-use salient::store::{SledStore, Store};
+use salient_core::rank::Method;
+use salient_server::store::{SledStore, Store};
 
 use serde_json::{json, Value};
 use server::Server;
@@ -273,7 +273,7 @@ fn fill(data: &Path, base: &Path, from: usize, to: usize) {
     for i in from..to {
         let (record, signature, upload) = &models[i % models.len()];
         let mut record = record.clone();
-        record.id = salient::model::ModelId::parse(&format!("m{i:06}")).expect("a valid id");
+        record.id = salient_server::model::ModelId::parse(&format!("m{i:06}")).expect("a valid id");
         record.tags = vec![format!("t{}", i % 10)];
         let bytes = corpus::perturbed(signature, &mut rng, 0.15).to_bytes();
         store.put(&record, &bytes, upload).expect("stores");

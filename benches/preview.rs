@@ -9,11 +9,11 @@ use std::collections::BTreeMap;
 use std::path::PathBuf;
 
 use criterion::{criterion_group, criterion_main, Criterion};
-use salient::mesh::{load_path, Format};
-use salient::pipeline::{compute, preview_of_file};
-use salient::preview::Preview;
-use salient::render::{png, thumbnail, UpAxis};
-use salient::{Limits, Params};
+use salient_core::mesh::{load_path, Format};
+use salient_core::pipeline::{compute, preview_of_file};
+use salient_core::preview::Preview;
+use salient_core::render::{png, thumbnail, UpAxis};
+use salient_core::{Limits, Params};
 
 fn previews(c: &mut Criterion) {
     let path = std::env::var_os("SALIENT_BENCH_MESH").map_or_else(

@@ -13,9 +13,9 @@ use std::time::Instant;
 use rand::SeedableRng;
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
-use salient::rank::{Index, Method, Scope};
-use salient::similarity::compare;
-use salient::{Params, Signature};
+use salient_core::rank::{Index, Method, Scope};
+use salient_core::similarity::compare;
+use salient_core::{Params, Signature};
 
 /// A signature with exactly `n` features.
 fn with_features(n: usize, seed: u64) -> Signature {

@@ -11,8 +11,8 @@
 //! This changes the encoding only: what each signature says is unchanged, and a signature
 //! that is stale under the current parameters stays stale (it is re-extracted, not migrated).
 
-use crate::signature::Signature;
 use crate::store::{StoreError, StoreResult};
+use salient_core::signature::Signature;
 
 pub fn apply(db: &sled::Db) -> StoreResult<()> {
     db.open_tree("state")?;

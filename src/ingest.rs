@@ -8,11 +8,11 @@ use std::time::Duration;
 
 use serde::Deserialize;
 
-use crate::collection::find_meshes;
-use crate::mesh::load::DirResources;
-use crate::mesh::{Format, Resources};
-use crate::model::{sha256_hex, ModelId, Upload, MAX_ID_LEN};
-use crate::{Error, Result};
+use salient_core::collection::find_meshes;
+use salient_core::mesh::load::DirResources;
+use salient_core::mesh::{Format, Resources};
+use salient_core::{Error, Result};
+use salient_server::model::{sha256_hex, ModelId, Upload, MAX_ID_LEN};
 
 /// One file of the folder and the model it becomes.
 #[derive(Debug, Clone, PartialEq, Eq)]

@@ -1,6 +1,7 @@
 //! The `salient` command line. Errors end here as one line on stderr and a non-zero exit.
 
 mod cli;
+mod ingest;
 
 use std::process::ExitCode;
 

@@ -6,10 +6,10 @@ use std::path::{Path, PathBuf};
 
 use rand::Rng;
 use rand_chacha::ChaCha8Rng;
-use salient::descriptor::LightFieldDescriptor;
-use salient::rank::Method;
-use salient::store::{SledStore, Store};
-use salient::{Params, Signature};
+use salient_core::descriptor::LightFieldDescriptor;
+use salient_core::rank::Method;
+use salient_core::{Params, Signature};
+use salient_server::store::{SledStore, Store};
 
 /// The shared collections (`../shared/data`, or `SALIENT_BENCH_DATA`).
 pub fn data_dir() -> PathBuf {
@@ -44,9 +44,9 @@ fn hex_key(bytes: &[u8]) -> String {
 pub fn load_base(
     base: &Path,
 ) -> Vec<(
-    salient::model::ModelRecord,
+    salient_server::model::ModelRecord,
     Signature,
-    salient::model::Upload,
+    salient_server::model::Upload,
 )> {
     let source = SledStore::open(base).expect("the base store");
     source

@@ -4,10 +4,10 @@ use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 
-use salient::pipeline::describe;
-use salient::pipeline::extract_path;
-use salient::similarity::compare;
-use salient::{Limits, Params, Signature};
+use salient_core::pipeline::describe;
+use salient_core::pipeline::extract_path;
+use salient_core::similarity::compare;
+use salient_core::{Limits, Params, Signature};
 
 #[derive(Debug, clap::Args)]
 pub struct Args {

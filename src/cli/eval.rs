@@ -6,12 +6,12 @@ use std::sync::Mutex;
 use anyhow::Context;
 use indicatif::{ProgressBar, ProgressStyle};
 
-use salient::collection::{SignatureCache, CACHE_DIR};
-use salient::eval::retrieval::{self, EvalMethod};
-use salient::eval::robustness::Perturbation;
-use salient::eval::{duplicates, partial, robustness, study, tune, LabelledCollection, Progress};
-use salient::mesh::load_path;
-use salient::Limits;
+use salient_core::collection::{SignatureCache, CACHE_DIR};
+use salient_core::mesh::load_path;
+use salient_core::Limits;
+use salient_eval::retrieval::{self, EvalMethod};
+use salient_eval::robustness::Perturbation;
+use salient_eval::{duplicates, partial, robustness, study, tune, LabelledCollection, Progress};
 
 #[derive(Debug, clap::Args)]
 pub struct Args {
@@ -49,7 +49,7 @@ struct DuplicatesArgs {
     dir: PathBuf,
     /// The models that take part: the tuning half (thresholds are chosen on it), the
     /// held-out half (they are judged on it) or all.
-    #[arg(long, value_enum, default_value = "held-out")]
+    #[arg(long, default_value = "held-out", value_parser = super::choice(&study::Half::ALL, study::Half::as_str))]
     half: study::Half,
     /// Where duplicates.json and duplicates.md go.
     #[arg(long, default_value = "salient-duplicates")]
@@ -65,7 +65,7 @@ struct PartialArgs {
     dir: PathBuf,
     /// The models parts are cut from: the tuning half (the sizes are chosen on it), the
     /// held-out half (they are judged on it) or all. Every model is searched.
-    #[arg(long, value_enum, default_value = "held-out")]
+    #[arg(long, default_value = "held-out", value_parser = super::choice(&study::Half::ALL, study::Half::as_str))]
     half: study::Half,
     /// Where partial.json and partial.md go.
     #[arg(long, default_value = "salient-partial")]
@@ -312,7 +312,7 @@ impl Progress for Bar {
 
 /// The end of a report command: `result` of writing the report's files into `out`; then
 /// the report on stdout.
-fn written(out: &Path, result: salient::Result<()>, markdown: String) -> anyhow::Result<()> {
+fn written(out: &Path, result: salient_core::Result<()>, markdown: String) -> anyhow::Result<()> {
     result.with_context(|| format!("writing the report into {}", out.display()))?;
     print!("{markdown}");
     Ok(())

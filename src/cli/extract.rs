@@ -6,9 +6,9 @@ use std::path::PathBuf;
 use glam::DVec3;
 use serde::Serialize;
 
-use salient::pipeline::describe;
-use salient::pipeline::extract_path;
-use salient::{Limits, Signature};
+use salient_core::pipeline::describe;
+use salient_core::pipeline::extract_path;
+use salient_core::{Limits, Signature};
 
 #[derive(Debug, clap::Args)]
 pub struct Args {

@@ -20,8 +20,8 @@ use serde_json::Value;
 use tokio::sync::Semaphore;
 use tokio::task::JoinSet;
 
-use salient::ingest::{self, parse_retry_after, Backoff, Item};
-use salient::model::Upload;
+use crate::ingest::{self, parse_retry_after, Backoff, Item};
+use salient_server::model::Upload;
 
 #[derive(Debug, clap::Args)]
 pub struct Args {

@@ -5,7 +5,7 @@ use std::path::PathBuf;
 
 use anyhow::Context;
 
-use salient::api::auth::{new_key, Scope};
+use salient_server::api::auth::{new_key, Scope};
 
 #[derive(Debug, clap::Args)]
 pub struct Args {

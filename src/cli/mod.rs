@@ -17,7 +17,7 @@ use std::path::PathBuf;
 use anyhow::Context;
 use clap::{Parser, Subcommand};
 
-use salient::Params;
+use salient_core::Params;
 
 /// Content-based 3D model retrieval with extended cone-curvature salient features.
 #[derive(Debug, Parser)]
@@ -73,7 +73,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Keys(args) => keys::run(args),
         Command::Health(args) => health::run(args),
         Command::Openapi => {
-            print!("{}", salient::api::openapi_yaml());
+            print!("{}", salient_server::api::openapi_yaml());
             Ok(())
         }
         Command::Eval(args) => eval::run(args),
@@ -89,4 +89,18 @@ fn load_params(path: Option<&PathBuf>) -> anyhow::Result<Params> {
     let text = std::fs::read_to_string(path)
         .with_context(|| format!("cannot read parameters {}", path.display()))?;
     serde_json::from_str(&text).with_context(|| format!("invalid parameters in {}", path.display()))
+}
+
+/// A value parser for a library enum named by `name`: its names are listed in `--help`, and
+/// the libraries stay free of clap.
+fn choice<T: Copy + Send + Sync + 'static>(
+    all: &'static [T],
+    name: fn(T) -> &'static str,
+) -> impl clap::builder::TypedValueParser<Value = T> {
+    use clap::builder::TypedValueParser;
+    clap::builder::PossibleValuesParser::new(all.iter().map(|&v| name(v))).map(move |chosen| {
+        *all.iter()
+            .find(|&&v| name(v) == chosen)
+            .expect("clap accepts only the possible values")
+    })
 }

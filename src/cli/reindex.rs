@@ -7,10 +7,10 @@ use std::path::PathBuf;
 use anyhow::Context;
 use indicatif::{ProgressBar, ProgressStyle};
 
-use salient::pipeline::{signature_of_file, Extent};
-use salient::signature::Signature;
-use salient::store::{SledStore, Store};
-use salient::Limits;
+use salient_core::pipeline::{signature_of_file, Extent};
+use salient_core::signature::Signature;
+use salient_core::Limits;
+use salient_server::store::{SledStore, Store};
 
 #[derive(Debug, clap::Args)]
 pub struct Args {

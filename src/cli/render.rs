@@ -4,10 +4,10 @@ use std::path::PathBuf;
 
 use anyhow::Context;
 
-use salient::pipeline::extract_path;
-use salient::render::{render, save_png, Camera};
-use salient::salient::detect;
-use salient::Limits;
+use salient_core::pipeline::extract_path;
+use salient_core::render::{render, save_png, Camera};
+use salient_core::salient::detect;
+use salient_core::Limits;
 
 #[derive(Debug, clap::Args)]
 pub struct Args {

@@ -9,13 +9,13 @@ use indicatif::{ProgressBar, ProgressStyle};
 use rayon::prelude::*;
 use serde::Serialize;
 
-use salient::collection::{find_meshes, SignatureCache, Source};
-use salient::descriptor::patch::Packed;
-use salient::mesh::load_path;
-use salient::partial::{by_residual, nearest_first, Part, Probe, Target};
-use salient::rank::{Index, Method, Scope};
-use salient::signature::Signature;
-use salient::Limits;
+use salient_core::collection::{find_meshes, SignatureCache, Source};
+use salient_core::descriptor::patch::Packed;
+use salient_core::mesh::load_path;
+use salient_core::partial::{by_residual, nearest_first, Part, Probe, Target};
+use salient_core::rank::{Index, Method, Scope};
+use salient_core::signature::Signature;
+use salient_core::Limits;
 
 #[derive(Debug, clap::Args)]
 pub struct Args {
@@ -32,7 +32,7 @@ pub struct Args {
     #[arg(long)]
     method: Option<Method>,
     /// The query is a piece of a model (cut from it, with an open boundary): rank the models
-    /// that contain a part like it (`salient::partial`), as the service does: the models
+    /// that contain a part like it (`salient_core::partial`), as the service does: the models
     /// nearest it by their patches (cached beside the signatures) verified by
     /// registration, then the rest by the salient-feature fit. `--method` does not apply.
     #[arg(long, conflicts_with = "method")]
@@ -79,7 +79,7 @@ struct Row {
     #[serde(skip_serializing_if = "Option::is_none")]
     part_scale: Option<f64>,
     /// With `--partial`, for the verified models: the registration residual
-    /// ([`salient::partial::Probe::residual`]).
+    /// ([`salient_core::partial::Probe::residual`]).
     #[serde(skip_serializing_if = "Option::is_none")]
     residual: Option<f64>,
 }

@@ -6,10 +6,10 @@ use std::sync::Arc;
 
 use anyhow::Context;
 
-use salient::api::config::Secret;
-use salient::api::{app, App, AppState, Config};
-use salient::render::UpAxis;
-use salient::store::SledStore;
+use salient_core::render::UpAxis;
+use salient_server::api::config::Secret;
+use salient_server::api::{app, App, AppState, Config};
+use salient_server::store::SledStore;
 
 /// Flags override the environment (`SALIENT_*`), which overrides the configuration file,
 /// which overrides the defaults. API keys come from `SALIENT_API_KEYS` (`SCOPE:KEY,…`; scopes
@@ -65,7 +65,7 @@ pub struct Args {
     metrics_open: Option<bool>,
     /// The models' up axis for thumbnails and 3D views: `y` (glTF, most game assets) or `z`
     /// (CAD, 3D printing).
-    #[arg(long, env = "SALIENT_UP_AXIS", value_enum)]
+    #[arg(long, env = "SALIENT_UP_AXIS", value_parser = super::choice(&UpAxis::ALL, UpAxis::as_str))]
     up_axis: Option<UpAxis>,
     /// Requests a minute per API key, 0 for no limit; beyond, 429 with `Retry-After`.
     #[arg(long, env = "SALIENT_REQUESTS_PER_MINUTE")]
@@ -119,7 +119,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         )
         .with_writer(std::io::stderr)
         .init();
-    salient::api::pool::limit_malloc_arenas();
+    salient_server::api::pool::limit_malloc_arenas();
     let config = args.config()?;
     let store = SledStore::open(&config.data)
         .with_context(|| format!("cannot open the store in {}", config.data.display()))?;

@@ -5,9 +5,9 @@ use std::sync::Arc;
 
 use axum::body::Bytes;
 use axum::http::StatusCode;
-use salient::api::Config;
-use salient::model::{ModelId, ModelRecord, Upload};
-use salient::store::{Derived, InMemoryStore, Loaded, Store, StoreError, StoreResult};
+use salient_server::api::Config;
+use salient_server::model::{ModelId, ModelRecord, Upload};
+use salient_server::store::{Derived, InMemoryStore, Loaded, Store, StoreError, StoreResult};
 use serde_json::Value;
 
 use crate::app::{Form, TestApp, TestResponse};

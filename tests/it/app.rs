@@ -9,8 +9,8 @@ use axum::body::{Body, Bytes};
 use axum::http::{HeaderMap, Method, Request, StatusCode};
 use axum::Router;
 use http_body_util::BodyExt;
-use salient::api::{self, App, AppState, Config, Hook};
-use salient::store::{InMemoryStore, Store};
+use salient_server::api::{self, App, AppState, Config, Hook};
+use salient_server::store::{InMemoryStore, Store};
 use serde_json::Value;
 use tower::ServiceExt;
 

@@ -6,9 +6,9 @@ use std::process::Command;
 use std::sync::Arc;
 
 use axum::http::StatusCode;
-use salient::api::config::Secret;
-use salient::api::{App, Config, StartError};
-use salient::store::InMemoryStore;
+use salient_server::api::config::Secret;
+use salient_server::api::{App, Config, StartError};
+use salient_server::store::InMemoryStore;
 
 use crate::app::{expect_error, TestApp};
 use crate::server::{fixture, Server};

@@ -1,7 +1,7 @@
 //! Test support: a small glTF/GLB writer and mesh comparison helpers.
 
 use base64::Engine;
-use salient::mesh::RawMesh;
+use salient_core::mesh::RawMesh;
 use serde_json::{json, Value};
 
 /// Path of a file under `tests/fixtures`.

@@ -6,8 +6,8 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
 
 use reqwest::{Client, StatusCode};
-use salient::api::{Config, Hook};
-use salient::store::InMemoryStore;
+use salient_server::api::{Config, Hook};
+use salient_server::store::InMemoryStore;
 
 use crate::app::TestApp;
 use crate::server::{obj, Server};

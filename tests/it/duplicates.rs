@@ -4,14 +4,14 @@
 
 use axum::http::StatusCode;
 use glam::{DMat4, DQuat, DVec3};
-use salient::duplicate::{verify, Evidence, Shape};
-use salient::mesh::load::NoResources;
-use salient::mesh::simplify::simplify;
-use salient::mesh::weld::weld;
-use salient::mesh::write::Export;
-use salient::mesh::{load_bytes, RawMesh};
-use salient::params::DuplicateParams;
-use salient::Limits;
+use salient_core::duplicate::{verify, Evidence, Shape};
+use salient_core::mesh::load::NoResources;
+use salient_core::mesh::simplify::simplify;
+use salient_core::mesh::weld::weld;
+use salient_core::mesh::write::Export;
+use salient_core::mesh::{load_bytes, RawMesh};
+use salient_core::params::DuplicateParams;
+use salient_core::Limits;
 use serde_json::Value;
 
 use crate::app::TestApp;
@@ -171,7 +171,7 @@ fn a_real_tree_simplified_to_half_is_the_tree() {
     // principal axes across the trunk are arbitrary: it was missed before both were handled.
     let raw = load_bytes(
         &fixture("capod_tree_m50.obj"),
-        salient::mesh::Format::Obj,
+        salient_core::mesh::Format::Obj,
         &NoResources,
         &Limits::default(),
     )

@@ -9,7 +9,7 @@ use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 use reqwest::{Client, StatusCode};
-use salient::store::{SledStore, Store};
+use salient_server::store::{SledStore, Store};
 use serde_json::Value;
 use server::{obj, Server};
 

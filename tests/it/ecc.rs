@@ -10,10 +10,10 @@
 use crate::shapes;
 
 use glam::DVec3;
-use salient::eval::robustness::Perturbation;
-use salient::mesh::RawMesh;
-use salient::pipeline::{extract, Extraction};
-use salient::{GeodesicRule, HeightRule, Params};
+use salient_core::mesh::RawMesh;
+use salient_core::pipeline::{extract, Extraction};
+use salient_core::{GeodesicRule, HeightRule, Params};
+use salient_eval::robustness::Perturbation;
 use std::f64::consts::FRAC_PI_2;
 
 fn run(raw: &RawMesh, params: &Params) -> Extraction {
@@ -248,7 +248,7 @@ fn one_and_two_threads_give_identical_ecc() {
 fn obj_and_seam_split_glb_give_the_same_mesh_and_ecc() {
     let fixtures = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures");
     let load = |name: &str| {
-        salient::pipeline::extract_path(
+        salient_core::pipeline::extract_path(
             &fixtures.join(name),
             &Params::default(),
             &Default::default(),
@@ -338,7 +338,7 @@ fn a_noisy_star_is_smoothed_and_keeps_its_tips() {
     let raw = shapes::star(4, &shapes::five_tips());
     let points = |params: &Params, mesh: &RawMesh| {
         let ex = run(mesh, params);
-        let (points, _) = salient::salient::detect(&ex, params);
+        let (points, _) = salient_core::salient::detect(&ex, params);
         let at: Vec<DVec3> = points
             .iter()
             .map(|p| ex.mesh.positions[p.vertex as usize])

@@ -2,7 +2,7 @@
 
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-use salient::emd::{emd, emd_uniform};
+use salient_core::emd::{emd, emd_uniform};
 
 fn random_costs(rng: &mut ChaCha8Rng, m: usize, n: usize) -> Vec<Vec<f64>> {
     (0..m)

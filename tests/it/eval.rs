@@ -7,14 +7,14 @@ use std::path::Path;
 use std::process::Command;
 
 use glam::DVec3;
-use salient::eval::robustness::{self, FACE_FRACTIONS, NOISE_LEVELS};
-use salient::eval::study::{self, Change};
-use salient::eval::LabelledCollection;
-use salient::mesh::RawMesh;
-use salient::pipeline::extract;
-use salient::render::{render, Camera, POINT_COLOUR};
-use salient::salient::detect;
-use salient::{Error, Params};
+use salient_core::mesh::RawMesh;
+use salient_core::pipeline::extract;
+use salient_core::render::{render, Camera, POINT_COLOUR};
+use salient_core::salient::detect;
+use salient_core::{Error, Params};
+use salient_eval::robustness::{self, FACE_FRACTIONS, NOISE_LEVELS};
+use salient_eval::study::{self, Change};
+use salient_eval::LabelledCollection;
 use serde_json::Value;
 
 /// Three classes of three models each, every model moved and scaled at random: stars with
@@ -220,7 +220,10 @@ fn study_grid_halves_and_report() {
         assert_ne!(params, base, "{change:?}");
     }
     assert!(!grid.contains(&Change::EccWeight(base.similarity.ecc_weight)));
-    assert_eq!(Change::Height(salient::HeightRule::Paper).value(), "paper");
+    assert_eq!(
+        Change::Height(salient_core::HeightRule::Paper).value(),
+        "paper"
+    );
 
     let dir = tempfile::tempdir().unwrap();
     let (collection, out) = (dir.path().join("shapes"), dir.path().join("study"));

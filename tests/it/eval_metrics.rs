@@ -3,10 +3,10 @@
 
 use crate::synthetic;
 
-use salient::eval::metrics::Scores;
-use salient::eval::retrieval::{evaluate, DistanceMatrix};
-use salient::rank::{distance, Method};
-use salient::Params;
+use salient_core::rank::{distance, Method};
+use salient_core::Params;
+use salient_eval::metrics::Scores;
+use salient_eval::retrieval::{evaluate, DistanceMatrix};
 
 fn close(a: f64, b: f64) -> bool {
     (a - b).abs() < 1e-12

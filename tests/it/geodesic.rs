@@ -3,14 +3,14 @@
 //! like one.
 
 use glam::DVec3;
-use salient::mesh::RawMesh;
-use salient::rank::{distance, Method};
-use salient::{Params, Signature};
+use salient_core::mesh::RawMesh;
+use salient_core::rank::{distance, Method};
+use salient_core::{Params, Signature};
 
 use crate::shapes;
 
 fn signature(mesh: &RawMesh) -> Signature {
-    salient::pipeline::compute(mesh, &Params::default()).unwrap()
+    salient_core::pipeline::compute(mesh, &Params::default()).unwrap()
 }
 
 /// The tube bent along an arc of radius `radius` in the x–z plane: the axis keeps its

@@ -7,9 +7,9 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use axum::http::StatusCode;
-use salient::api::Config;
-use salient::signature::{Signature, Staleness, SIGNATURE_FORMAT};
-use salient::store::{Derived, SledStore, Store};
+use salient_core::signature::{Signature, Staleness, SIGNATURE_FORMAT};
+use salient_server::api::Config;
+use salient_server::store::{Derived, SledStore, Store};
 use serde_json::Value;
 
 use crate::app::TestApp;
@@ -73,7 +73,7 @@ fn release_0_1_0_signature_files_read_as_they_were_written() {
         assert_contains(&expected(&format!("{id}.signature.json")), &json, id);
         // Made by the 0.1.0 extraction: stale now, never silently current.
         assert_eq!(
-            signature.staleness(&salient::Params::default()),
+            signature.staleness(&salient_core::Params::default()),
             Some(Staleness::Parameters)
         );
         // Written again in today's format, it reads back the same.

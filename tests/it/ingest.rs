@@ -9,7 +9,7 @@ use std::path::Path;
 use std::process::{Command, Output};
 
 use glam::DMat4;
-use salient::mesh::RawMesh;
+use salient_core::mesh::RawMesh;
 use serde_json::Value;
 use server::Server;
 

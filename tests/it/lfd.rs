@@ -4,14 +4,14 @@
 use crate::shapes;
 
 use glam::{DMat3, DVec3};
-use salient::descriptor::lfd::zernike::orders;
-use salient::descriptor::lfd::{
+use salient_core::descriptor::lfd::zernike::orders;
+use salient_core::descriptor::lfd::{
     fourier_descriptors, zernike_magnitudes, Cameras, ImageFeatures, LfdQuery,
     LightFieldDescriptor, Silhouette, COEFFICIENTS, IMAGE_SIZE, LIGHT_FIELDS, PACKED, ROTATIONS,
     VIEWS,
 };
-use salient::mesh::{prepare, PreparedMesh, RawMesh};
-use salient::params::MeshParams;
+use salient_core::mesh::{prepare, PreparedMesh, RawMesh};
+use salient_core::params::MeshParams;
 
 fn prepared(raw: &RawMesh) -> PreparedMesh {
     prepare(raw, &MeshParams::default()).expect("generated meshes prepare")
@@ -191,7 +191,7 @@ fn the_60_rotations_form_a_group_permuting_the_views() {
     permutations.dedup();
     assert_eq!(permutations.len(), ROTATIONS);
     // Each maps the dodecahedron onto itself.
-    let vertices = salient::descriptor::lfd::cameras::dodecahedron();
+    let vertices = salient_core::descriptor::lfd::cameras::dodecahedron();
     for r in &cameras.rotations {
         for v in &vertices {
             assert!(vertices.iter().any(|w| (*r * *v).distance(*w) < 1e-9));

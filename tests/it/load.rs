@@ -13,12 +13,12 @@ use common::{
 use glam::DVec3;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-use salient::mesh::load::{DirResources, NoResources};
-use salient::mesh::{load_bytes, load_path, Format, RawMesh, Resources};
-use salient::{Error, Limits};
+use salient_core::mesh::load::{DirResources, NoResources};
+use salient_core::mesh::{load_bytes, load_path, Format, RawMesh, Resources};
+use salient_core::{Error, Limits};
 use serde_json::json;
 
-fn load(bytes: &[u8], format: Format) -> salient::Result<RawMesh> {
+fn load(bytes: &[u8], format: Format) -> salient_core::Result<RawMesh> {
     load_bytes(bytes, format, &NoResources, &Limits::default())
 }
 
@@ -1161,7 +1161,7 @@ fn fuzz_never_panics() {
         let outcome = std::panic::catch_unwind(|| {
             Format::sniff(bytes);
             load(bytes, *format).map(|raw| {
-                let _ = salient::pipeline::extract(&raw, &salient::Params::default());
+                let _ = salient_core::pipeline::extract(&raw, &salient_core::Params::default());
             })
         });
         match outcome {

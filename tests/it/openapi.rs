@@ -7,8 +7,8 @@ use std::path::Path;
 
 use axum::body::Body;
 use axum::http::{Method, Request, StatusCode};
-use salient::api::{app, openapi_yaml, App, AppState, Config};
-use salient::store::SledStore;
+use salient_server::api::{app, openapi_yaml, App, AppState, Config};
+use salient_server::store::SledStore;
 use tower::ServiceExt;
 
 fn committed() -> std::path::PathBuf {

@@ -4,14 +4,14 @@
 
 use axum::http::StatusCode;
 use glam::DVec3;
-use salient::descriptor::patch::{piece, piece_distance, Layout, Packed, Patches, LEN};
-use salient::mesh::RawMesh;
-use salient::params::Params;
-use salient::partial::{cut, stored_patches, Part, Probe, Target};
-use salient::pipeline::compute;
-use salient::rank::{Index, Scope};
-use salient::similarity::{part_in, CostMatrix, Features};
-use salient::store::{Derived, InMemoryStore, Store};
+use salient_core::descriptor::patch::{piece, piece_distance, Layout, Packed, Patches, LEN};
+use salient_core::mesh::RawMesh;
+use salient_core::params::Params;
+use salient_core::partial::{cut, stored_patches, Part, Probe, Target};
+use salient_core::pipeline::compute;
+use salient_core::rank::{Index, Scope};
+use salient_core::similarity::{part_in, CostMatrix, Features};
+use salient_server::store::{Derived, InMemoryStore, Store};
 use serde_json::Value;
 
 use crate::app::TestApp;
@@ -103,7 +103,7 @@ fn a_piece_is_described_alike_however_it_is_moved_and_a_model_holds_its_own_piec
     // The spike is among the star's patches, not among the sphere's or the tube's.
     let params = Params::default();
     let patches = |mesh: &RawMesh| {
-        let prepared = salient::mesh::prepare(mesh, &params.mesh).unwrap();
+        let prepared = salient_core::mesh::prepare(mesh, &params.mesh).unwrap();
         Patches::compute(&prepared.positions, &prepared.triangles, 5, Layout::FRAMES)
     };
     let models = collection();
@@ -126,7 +126,7 @@ fn a_piece_is_described_alike_however_it_is_moved_and_a_model_holds_its_own_piec
 #[test]
 fn packed_patches_measure_as_the_descriptions_within_their_rounding_and_read_back() {
     let params = Params::default();
-    let prepared = salient::mesh::prepare(&collection()[0].1, &params.mesh).unwrap();
+    let prepared = salient_core::mesh::prepare(&collection()[0].1, &params.mesh).unwrap();
     let patches = Patches::compute(&prepared.positions, &prepared.triangles, 5, Layout::STORED);
     let packed = Packed::of(&patches);
     assert_eq!(
@@ -197,7 +197,7 @@ fn too_many_verified_models_are_refused() {
     params.similarity.partial.verified = 101;
     assert!(matches!(
         params.validate(),
-        Err(salient::Error::InvalidParameter {
+        Err(salient_core::Error::InvalidParameter {
             name: "similarity.partial.verified",
             ..
         })
@@ -215,8 +215,8 @@ fn a_part_fits_where_its_features_are_and_the_whole_model_emd_does_not() {
     assert!(star.features.len() > 1);
     assert_eq!(part_in(&CostMatrix::new(&one, &whole, similarity)), 0.0);
     // The whole-model EMD moves the part's mass over every feature.
-    let emd = salient::similarity::compare(
-        &salient::signature::Signature {
+    let emd = salient_core::similarity::compare(
+        &salient_core::signature::Signature {
             features: star.features[..1].to_vec(),
             ..star.clone()
         },
@@ -258,7 +258,7 @@ fn a_piece_cut_from_a_model_finds_it_and_the_pruned_ranking_equals_a_full_scan()
                 .fit(features, &params.similarity, f64::INFINITY)
                 .unwrap();
             assert!(
-                part.bound(&salient::similarity::Summary::of(
+                part.bound(&salient_core::similarity::Summary::of(
                     features,
                     &params.similarity
                 )) <= fit.distance
@@ -363,7 +363,7 @@ fn part_sizes_out_of_range_are_refused() {
     for scales in [vec![], vec![0.1], vec![1.5], vec![0.5; 9]] {
         let result = Part::extract(&spike(), &params, &scales, &params.similarity);
         assert!(
-            matches!(result, Err(salient::Error::InvalidParameter { .. })),
+            matches!(result, Err(salient_core::Error::InvalidParameter { .. })),
             "{scales:?}"
         );
     }
@@ -439,7 +439,7 @@ async fn a_part_is_searched_over_http() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn patches_are_made_in_the_background_and_pick_what_a_partial_search_verifies() {
     let store = std::sync::Arc::new(InMemoryStore::new());
-    let mut config = salient::api::Config::default();
+    let mut config = salient_server::api::Config::default();
     config.params.similarity.partial.verified = 1;
     let app = TestApp::build(config, store.clone(), None);
     let models = collection();

@@ -6,12 +6,12 @@ use std::sync::Arc;
 
 use axum::http::{header, StatusCode};
 use glam::{DMat4, DVec3};
-use salient::api::config::Secret;
-use salient::api::Config;
-use salient::preview::NO_REGION;
-use salient::rank::Method;
-use salient::render::{region_colour, SURFACE};
-use salient::store::{Derived, InMemoryStore, Store};
+use salient_core::preview::NO_REGION;
+use salient_core::rank::Method;
+use salient_core::render::{region_colour, SURFACE};
+use salient_server::api::config::Secret;
+use salient_server::api::Config;
+use salient_server::store::{Derived, InMemoryStore, Store};
 use serde_json::Value;
 
 use crate::app::{expect_error, Form, TestApp};
@@ -195,7 +195,7 @@ fn read_glb(bytes: &[u8]) -> Glb {
 
 #[tokio::test]
 async fn preview_meshes_carry_regions_and_points_in_the_models_own_coordinates() {
-    let app = TestApp::with_config(|c| c.up_axis = salient::render::UpAxis::Z);
+    let app = TestApp::with_config(|c| c.up_axis = salient_core::render::UpAxis::Z);
     with_models(&app).await;
     let record = app.get_json("/v1/models/star").await;
     let features = record["features"].as_u64().unwrap() as usize;
@@ -210,7 +210,7 @@ async fn preview_meshes_carry_regions_and_points_in_the_models_own_coordinates()
     let glb = read_glb(&response.body);
     assert_eq!(glb.up, "z");
     assert_eq!(glb.positions.len(), glb.regions.len());
-    assert!(glb.triangles > 0 && glb.triangles <= salient::preview::MAX_TRIANGLES);
+    assert!(glb.triangles > 0 && glb.triangles <= salient_core::preview::MAX_TRIANGLES);
     assert_eq!(glb.points.len(), features);
     let mut labels: Vec<u16> = glb
         .regions
@@ -305,9 +305,9 @@ async fn explained_results_give_every_distance_and_the_emd_plan() {
         );
         // The hybrid's terms add up to it.
         let terms = explanation["contributions"].as_object().unwrap();
-        let mut weighed: Vec<String> = salient::rank::PARTS
+        let mut weighed: Vec<String> = salient_core::rank::PARTS
             .iter()
-            .zip(salient::params::HybridParams::default().terms())
+            .zip(salient_core::params::HybridParams::default().terms())
             .filter(|(_, t)| t.weight > 0.0)
             .map(|(m, _)| m.to_string())
             .collect();

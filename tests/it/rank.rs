@@ -4,10 +4,10 @@
 use crate::shapes;
 use crate::synthetic;
 
-use salient::params::{HybridParams, Term};
-use salient::rank::{distance, fuse, Index, Method, Ranking, Scope};
-use salient::similarity::{centroid_bound, lower_bound, Features, Summary};
-use salient::{Params, Signature};
+use salient_core::params::{HybridParams, Term};
+use salient_core::rank::{distance, fuse, Index, Method, Ranking, Scope};
+use salient_core::similarity::{centroid_bound, lower_bound, Features, Summary};
+use salient_core::{Params, Signature};
 
 /// Checks that `index`'s pruned ranking of `query` is a full scan's, every entry counted as
 /// evaluated or pruned; returns how many were pruned.
@@ -129,7 +129,7 @@ fn generated_signatures(params: &Params) -> Vec<(&'static str, Signature)> {
         ("bowl", shapes::bowl(3)),
     ]
     .into_iter()
-    .map(|(id, m)| (id, salient::pipeline::compute(&m, params).unwrap()))
+    .map(|(id, m)| (id, salient_core::pipeline::compute(&m, params).unwrap()))
     .collect()
 }
 
@@ -233,8 +233,9 @@ fn hybrid_weights_load_from_parameters() {
     for (_, query) in &signatures {
         let hybrid = index.search(query, 4, Method::Hybrid).expect("ranks");
         let d2 = index.search(query, 4, Method::D2).expect("ranks");
-        let ids =
-            |r: &salient::rank::Ranking| r.hits.iter().map(|h| h.id.clone()).collect::<Vec<_>>();
+        let ids = |r: &salient_core::rank::Ranking| {
+            r.hits.iter().map(|h| h.id.clone()).collect::<Vec<_>>()
+        };
         assert_eq!(ids(&hybrid), ids(&d2));
         for (h, d) in hybrid.hits.iter().zip(&d2.hits) {
             assert!((h.distance - d.distance / 0.25).abs() < 1e-12);
@@ -482,9 +483,9 @@ fn hits(ranking: &Ranking) -> Vec<(f64, &str)> {
 /// the entry does, exactly.
 #[test]
 fn block_boxes_never_bound_above_their_entries() {
-    use salient::descriptor::lfd::SketchSpan;
-    use salient::descriptor::Span;
-    use salient::similarity::centroid_span_bound;
+    use salient_core::descriptor::lfd::SketchSpan;
+    use salient_core::descriptor::Span;
+    use salient_core::similarity::centroid_span_bound;
 
     let mut collection = synthetic::collection(256, 8, 31);
     synthetic::with_descriptors(&mut collection, 8, 32);

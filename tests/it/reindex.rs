@@ -6,12 +6,12 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use axum::http::StatusCode;
-use salient::api::{Config, ReindexProgress, ReindexState};
-use salient::model::ModelId;
-use salient::pipeline::compute;
-use salient::signature::Signature;
-use salient::store::{InMemoryStore, Store};
-use salient::Params;
+use salient_core::pipeline::compute;
+use salient_core::signature::Signature;
+use salient_core::Params;
+use salient_server::api::{Config, ReindexProgress, ReindexState};
+use salient_server::model::ModelId;
+use salient_server::store::{InMemoryStore, Store};
 
 use crate::app::{expect_error, TestApp};
 use crate::server::obj;
@@ -164,7 +164,10 @@ async fn the_release_0_1_0_store_is_re_extracted_at_start() {
     assert_eq!(ranked["results"][0]["id"], "horse-split");
     assert_eq!(ranked["results"][0]["distance"], 0.0);
     let record = app.get_json("/v1/models/horse").await;
-    assert_eq!(record["params_version"], salient::params::PARAMS_VERSION);
+    assert_eq!(
+        record["params_version"],
+        salient_core::params::PARAMS_VERSION
+    );
     assert_eq!(record["name"], "Horse");
     assert!(ModelId::parse(record["id"].as_str().unwrap()).is_ok());
 }

@@ -106,8 +106,8 @@ impl Drop for Server {
 }
 
 /// An OBJ file's text for a mesh.
-pub fn obj(mesh: &salient::mesh::RawMesh) -> Vec<u8> {
-    salient::mesh::write::Export::Obj.write(mesh)
+pub fn obj(mesh: &salient_core::mesh::RawMesh) -> Vec<u8> {
+    salient_core::mesh::write::Export::Obj.write(mesh)
 }
 
 pub fn fixture(name: &str) -> Vec<u8> {

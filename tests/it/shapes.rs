@@ -6,7 +6,7 @@ use std::f64::consts::PI;
 use glam::{DMat4, DQuat, DVec3};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-use salient::mesh::RawMesh;
+use salient_core::mesh::RawMesh;
 
 /// Unit icosphere with `subdivisions` midpoint subdivisions, outward winding, vertex 0 at the
 /// north pole (0, 0, 1).
@@ -296,5 +296,5 @@ pub fn tree(seed: u64, leaves: usize, keep: impl Fn(usize) -> bool) -> RawMesh {
 
 /// Writes `mesh` as a Wavefront OBJ file.
 pub fn write_obj(path: &std::path::Path, mesh: &RawMesh) {
-    std::fs::write(path, salient::mesh::write::Export::Obj.write(mesh)).unwrap();
+    std::fs::write(path, salient_core::mesh::write::Export::Obj.write(mesh)).unwrap();
 }

@@ -3,12 +3,12 @@
 
 use crate::shapes;
 
-use salient::pipeline::compute;
-use salient::signature::Staleness;
-use salient::similarity::compare;
-use salient::{Error, Params, Signature};
+use salient_core::pipeline::compute;
+use salient_core::signature::Staleness;
+use salient_core::similarity::compare;
+use salient_core::{Error, Params, Signature};
 
-fn signature(raw: &salient::mesh::RawMesh) -> Signature {
+fn signature(raw: &salient_core::mesh::RawMesh) -> Signature {
     compute(raw, &Params::default()).expect("generated meshes extract")
 }
 
@@ -96,7 +96,7 @@ fn penalty_multiplies_the_emd() {
 fn binary_form_round_trips_compactly_and_refuses_garbage() {
     let fixture = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
         .join("tests/fixtures/capod_horse_m155.obj");
-    let raw = salient::mesh::load_path(&fixture, &Default::default()).unwrap();
+    let raw = salient_core::mesh::load_path(&fixture, &Default::default()).unwrap();
     let s = signature(&raw);
     let bytes = s.to_bytes();
     let without_lfd = Signature {
@@ -121,7 +121,7 @@ fn binary_form_round_trips_compactly_and_refuses_garbage() {
         (&g.distances, &h.distances),
         (&g.eccentricity, &h.eccentricity),
     ] {
-        assert_eq!(a.len(), salient::descriptor::geodesic::BINS);
+        assert_eq!(a.len(), salient_core::descriptor::geodesic::BINS);
         assert!(a
             .iter()
             .zip(b)
@@ -176,11 +176,11 @@ fn format_3_signatures_read_as_extracted_today() {
     assert_eq!(stored.staleness(&Params::default()), None);
     let fixture = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
         .join("tests/fixtures/capod_horse_m155.obj");
-    let raw = salient::mesh::load_path(&fixture, &Default::default()).unwrap();
+    let raw = salient_core::mesh::load_path(&fixture, &Default::default()).unwrap();
     let today = signature(&raw).to_bytes();
     assert_eq!(
         Signature::format_of(&today),
-        Some(salient::signature::SIGNATURE_FORMAT)
+        Some(salient_core::signature::SIGNATURE_FORMAT)
     );
     assert!(
         today.len() < v3.len() * 3 / 4,
@@ -203,7 +203,7 @@ fn format_3_signatures_read_as_extracted_today() {
 fn the_format_4_dictionary_never_changes() {
     use sha2::{Digest, Sha256};
     assert_eq!(
-        hex::encode(Sha256::digest(salient::signature::DICTIONARY)),
+        hex::encode(Sha256::digest(salient_core::signature::DICTIONARY)),
         "de0e481ede4927790fdb30d3c2dacd09d1998e99e2d794a60d9a053915d55a72"
     );
 }

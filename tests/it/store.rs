@@ -4,14 +4,15 @@
 use crate::server;
 use crate::shapes;
 
-use salient::mesh::Format;
-use salient::model::{sha256_hex, Fields, ModelId, ModelRecord, Upload};
-use salient::store::{SledStore, Store, StoreError};
+use salient_core::mesh::Format;
+use salient_server::model::{sha256_hex, Fields, ModelId, ModelRecord, Upload};
+use salient_server::store::{SledStore, Store, StoreError};
 
 /// A record of `upload` under `id` (the store does not read the signature's content).
 fn record(id: &str, upload: &Upload) -> ModelRecord {
     let signature =
-        salient::pipeline::compute(&shapes::icosphere(1), &salient::Params::default()).unwrap();
+        salient_core::pipeline::compute(&shapes::icosphere(1), &salient_core::Params::default())
+            .unwrap();
     ModelRecord::new(
         ModelId::parse(id).unwrap(),
         Fields::default(),
@@ -176,18 +177,18 @@ async fn reindex_re_extracts_with_new_parameters() {
     let store = SledStore::open(&data).unwrap();
     for loaded in store.load_all() {
         let loaded = loaded.unwrap();
-        let signature = salient::Signature::from_bytes(&loaded.signature).unwrap();
+        let signature = salient_core::Signature::from_bytes(&loaded.signature).unwrap();
         assert_eq!(signature.params.d2.samples, 500, "{}", loaded.record.id);
         assert_eq!(
             loaded.record.params_version,
-            salient::params::PARAMS_VERSION
+            salient_core::params::PARAMS_VERSION
         );
     }
 }
 
 /// Opens a store this process had open: sled's flusher thread can hold the file lock for a
 /// moment after the last handle is dropped, so a lock failure is retried for up to 5 s.
-fn reopen(dir: &std::path::Path) -> salient::store::StoreResult<SledStore> {
+fn reopen(dir: &std::path::Path) -> salient_server::store::StoreResult<SledStore> {
     let mut result = SledStore::open(dir);
     for _ in 0..50 {
         if !matches!(result, Err(StoreError::Backend(_))) {
@@ -204,12 +205,13 @@ fn reopen(dir: &std::path::Path) -> salient::store::StoreResult<SledStore> {
 /// error naming its model (not a panic, not a hang of the reading thread).
 #[test]
 fn a_start_loads_every_model_across_batches_and_names_an_unreadable_one() {
-    use salient::api::{App, Config};
-    use salient::store::InMemoryStore;
+    use salient_server::api::{App, Config};
+    use salient_server::store::InMemoryStore;
     use std::sync::Arc;
 
     let signature =
-        salient::pipeline::compute(&shapes::icosphere(1), &salient::Params::default()).unwrap();
+        salient_core::pipeline::compute(&shapes::icosphere(1), &salient_core::Params::default())
+            .unwrap();
     let bytes = signature.to_bytes();
     let store = Arc::new(InMemoryStore::new());
     let count = 2_500;

@@ -5,7 +5,7 @@
 
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-use salient::{Feature, Params, Signature};
+use salient_core::{Feature, Params, Signature};
 
 fn histogram(rng: &mut ChaCha8Rng, bins: usize) -> Vec<f32> {
     // Region D2 histograms are unimodal bumps; their position and width vary with the region.
@@ -72,7 +72,7 @@ pub fn collection(count: usize, classes: usize, seed: u64) -> Vec<(String, Signa
                 features.push(extra);
             }
             let signature = Signature {
-                mesh_hash: salient::signature::MeshHash(std::array::from_fn(|b| {
+                mesh_hash: salient_core::signature::MeshHash(std::array::from_fn(|b| {
                     (i >> (8 * (b % 8))) as u8
                 })),
                 features,
@@ -91,8 +91,8 @@ pub fn collection(count: usize, classes: usize, seed: u64) -> Vec<(String, Signa
 /// prototypes (by position, `i % classes`) with each coefficient moved by up to ±6
 /// quantisation steps, and geodesic histograms like the region D2's.
 pub fn with_descriptors(collection: &mut [(String, Signature)], classes: usize, seed: u64) {
-    use salient::descriptor::lfd::{ImageFeatures, COEFFICIENTS, IMAGES};
-    use salient::descriptor::{geodesic, GeodesicDescriptor, LightFieldDescriptor};
+    use salient_core::descriptor::lfd::{ImageFeatures, COEFFICIENTS, IMAGES};
+    use salient_core::descriptor::{geodesic, GeodesicDescriptor, LightFieldDescriptor};
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let prototypes: Vec<Vec<u8>> = (0..classes)
         .map(|_| (0..COEFFICIENTS * IMAGES).map(|_| rng.gen()).collect())

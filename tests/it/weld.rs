@@ -4,11 +4,11 @@
 use glam::DVec3;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-use salient::mesh::load::NoResources;
-use salient::mesh::weld::{bounds, weld};
-use salient::mesh::{load_bytes, prepare, Format, RawMesh};
-use salient::params::MeshParams;
-use salient::Limits;
+use salient_core::mesh::load::NoResources;
+use salient_core::mesh::weld::{bounds, weld};
+use salient_core::mesh::{load_bytes, prepare, Format, RawMesh};
+use salient_core::params::MeshParams;
+use salient_core::Limits;
 
 use crate::common::fixture;
 use crate::shapes;
@@ -91,7 +91,7 @@ fn the_capod_horse_as_binary_stl_welds_to_its_obj() {
     let limits = Limits::default();
     let obj = std::fs::read(fixture("capod_horse_m155.obj")).unwrap();
     let mesh = load_bytes(&obj, Format::Obj, &NoResources, &limits).unwrap();
-    let stl = salient::mesh::write::Export::BinaryStl.write(&mesh);
+    let stl = salient_core::mesh::write::Export::BinaryStl.write(&mesh);
     let soup = load_bytes(&stl, Format::Stl, &NoResources, &limits).unwrap();
     let params = MeshParams::default();
     let (from_obj, from_stl) = (

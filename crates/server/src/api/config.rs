@@ -1,0 +1,183 @@
+//! Server configuration: defaults, then an optional TOML file, then `SALIENT_*` environment
+//! variables and flags (the CLI applies the last two).
+
+use std::net::SocketAddr;
+use std::path::{Path, PathBuf};
+
+use serde::{Deserialize, Serialize};
+
+use salient_core::params::{Limits, Params};
+use salient_core::render::UpAxis;
+
+/// Everything `salient serve` can be told.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct Config {
+    /// Address to listen on.
+    pub addr: SocketAddr,
+    /// Folder of the sled store.
+    pub data: PathBuf,
+    /// Folder of the ranking index's file of light field descriptors, kept out of memory and
+    /// made again at each start (`rank::shelf`); a disk, not a memory file system. Default:
+    /// `data` when serving from a store there, else the system's temporary folder.
+    pub shelf_dir: Option<PathBuf>,
+    /// Largest request body in bytes (uploads); larger ones get 413.
+    pub max_body_bytes: usize,
+    /// Extractions running at once.
+    pub workers: usize,
+    /// Extractions waiting for a worker; when full, new ones get 503 with `Retry-After`.
+    pub queue_depth: usize,
+    /// Niceness (0–19) of the extraction threads when serving: a search waiting behind
+    /// extractions of an ingest gets the cores first, and the ingest takes what is left.
+    pub extraction_nice: i32,
+    /// Rankings running at once, each on its own threads (the cores shared out); the others
+    /// wait their turn in arrival order.
+    pub rankings: usize,
+    /// Time limit for one request, extraction included.
+    pub request_timeout_secs: u64,
+    /// Origins allowed by CORS; empty allows none, `["*"]` any.
+    pub cors_origins: Vec<String>,
+    /// Largest `k` a search may ask for.
+    pub max_k: usize,
+    /// Re-extract stale signatures in the background when the server starts and finds any
+    /// (after an upgrade or a change of extraction parameters); they serve meanwhile.
+    pub reindex_on_start: bool,
+    /// Input limits (vertex and triangle counts).
+    pub limits: Limits,
+    /// Extraction and similarity parameters of the stored signatures.
+    pub params: Params,
+    /// File of hashed API keys (`SCOPE SHA256 LABEL` lines, from `salient keys new`), read
+    /// again on SIGHUP.
+    pub keys_file: Option<PathBuf>,
+    /// API keys as `SCOPE:KEY,…`: from the environment (`SALIENT_API_KEYS`) only, never from
+    /// the configuration file, and never printed.
+    #[serde(skip)]
+    pub inline_keys: Option<Secret>,
+    /// Serve without keys on an address that is not loopback (everyone may write).
+    pub allow_anonymous: bool,
+    /// `/metrics` without a key (for a scraper inside a trusted network).
+    pub metrics_open: bool,
+    /// The models' up axis, for thumbnails and 3D views.
+    pub up_axis: UpAxis,
+    /// Requests a minute each API key may make (in bursts of as many); beyond, 429 with
+    /// `Retry-After`. 0: no limit (a bulk ingest sends a few requests per model).
+    pub requests_per_minute: u32,
+}
+
+/// A value that must not be printed: its `Debug` says only that it is there.
+#[derive(Clone, PartialEq, Eq)]
+pub struct Secret(pub String);
+
+impl std::fmt::Debug for Secret {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("Secret(..)")
+    }
+}
+
+impl Default for Config {
+    fn default() -> Self {
+        Self {
+            addr: SocketAddr::from(([127, 0, 0, 1], 8080)),
+            data: PathBuf::from("salient-data"),
+            shelf_dir: None,
+            max_body_bytes: 64 << 20,
+            workers: std::thread::available_parallelism().map_or(2, |n| n.get()),
+            queue_depth: 16,
+            rankings: std::thread::available_parallelism().map_or(2, |n| n.get()),
+            extraction_nice: 10,
+            request_timeout_secs: 120,
+            cors_origins: Vec::new(),
+            max_k: 1000,
+            reindex_on_start: true,
+            limits: Limits {
+                max_input_vertices: 2_000_000,
+                max_input_triangles: 4_000_000,
+            },
+            params: Params::default(),
+            keys_file: None,
+            inline_keys: None,
+            allow_anonymous: false,
+            metrics_open: false,
+            up_axis: UpAxis::Y,
+            requests_per_minute: 0,
+        }
+    }
+}
+
+/// A configuration file that cannot be used.
+#[derive(Debug, thiserror::Error)]
+pub enum ConfigError {
+    #[error("cannot read {path}: {source}")]
+    Read {
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("invalid configuration in {path}: {message}")]
+    Invalid { path: PathBuf, message: String },
+}
+
+impl Config {
+    /// Defaults overlaid with `file` (TOML), if given.
+    pub fn load(file: Option<&Path>) -> Result<Self, ConfigError> {
+        let Some(path) = file else {
+            return Ok(Self::default());
+        };
+        let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
+            path: path.to_path_buf(),
+            source,
+        })?;
+        let config: Config = toml::from_str(&text).map_err(|e| ConfigError::Invalid {
+            path: path.to_path_buf(),
+            message: e.to_string(),
+        })?;
+        config.validate().map_err(|message| ConfigError::Invalid {
+            path: path.to_path_buf(),
+            message,
+        })?;
+        Ok(config)
+    }
+
+    /// The API keys of both sources (the environment's and the key file).
+    pub fn load_keys(&self) -> Result<super::auth::KeySet, super::auth::KeyError> {
+        super::auth::load_keys(
+            self.inline_keys.as_ref().map(|s| s.0.as_str()),
+            self.keys_file.as_deref(),
+        )
+    }
+
+    /// Checks the values no server can run with.
+    pub fn validate(&self) -> Result<(), String> {
+        if self.workers == 0 || self.rankings == 0 {
+            return Err("workers and rankings must be at least 1".into());
+        }
+        if !(0..=19).contains(&self.extraction_nice) {
+            return Err("extraction_nice must be within 0..=19".into());
+        }
+        if self.max_body_bytes == 0 || self.request_timeout_secs == 0 || self.max_k == 0 {
+            return Err("max_body_bytes, request_timeout_secs and max_k must be positive".into());
+        }
+        self.params.validate().map_err(|e| e.to_string())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn ranking_turns_and_extraction_niceness_are_bounded() {
+        assert_eq!(Config::default().validate(), Ok(()));
+        let read = |text: &str| toml::from_str::<Config>(text).unwrap();
+        let config = read("rankings = 2\nextraction_nice = 0");
+        assert_eq!((config.rankings, config.extraction_nice), (2, 0));
+        assert_eq!(config.validate(), Ok(()));
+        for bad in [
+            "rankings = 0",
+            "extraction_nice = 20",
+            "extraction_nice = -1",
+        ] {
+            assert!(read(bad).validate().is_err(), "{bad}");
+        }
+    }
+}

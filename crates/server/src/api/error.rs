@@ -1,0 +1,235 @@
+//! One error type for every HTTP failure, ours or axum's, with one JSON shape:
+//! `{"error": {"code": "…", "message": "…"}}` (SPEC §8; axum's `examples/error-handling`).
+//!
+//! An internal error's detail (a sled error, a corrupt signature, a path) is logged in the
+//! request's span, whose `request_id` is the `x-request-id` the client got; the response
+//! says only what happened in general terms.
+
+use axum::extract::multipart::MultipartError;
+use axum::extract::rejection::{BytesRejection, JsonRejection, PathRejection, QueryRejection};
+use axum::http::{header, StatusCode};
+use axum::response::{IntoResponse, Response};
+use axum::Json;
+use serde::Serialize;
+
+use super::duplicates::DuplicateMatch;
+use crate::model::InvalidId;
+use crate::store::StoreError;
+
+/// Everything a request can fail with.
+#[derive(Debug, thiserror::Error)]
+pub enum AppError {
+    /// Malformed request: parameters, JSON, ids, a mesh file that does not parse.
+    #[error("{message}")]
+    BadRequest { code: &'static str, message: String },
+    /// No API key, or one that is not valid.
+    #[error("{0}")]
+    Unauthorized(String),
+    /// A valid key whose scope is too small.
+    #[error("{0}")]
+    Forbidden(String),
+    #[error("{0}")]
+    NotFound(String),
+    /// The model exists but lacks what the request needs (a descriptor from a newer format).
+    #[error("{0}")]
+    Conflict(String),
+    /// The upload duplicates a stored model, and the client asked to reject duplicates.
+    #[error("the upload duplicates model {:?} ({})", .0.id, .0.evidence)]
+    Duplicate(DuplicateMatch),
+    #[error("{0}")]
+    PayloadTooLarge(String),
+    #[error("{0}")]
+    UnsupportedMediaType(String),
+    /// A well-formed mesh that cannot be used (no triangles, degenerate, …).
+    #[error("{0}")]
+    Unprocessable(String),
+    /// The key made more requests than its rate allows: retry later.
+    #[error("too many requests with this API key; retry in {retry_after_secs} s")]
+    RateLimited { retry_after_secs: u64 },
+    /// The extraction queue is full: retry later.
+    #[error("the extraction queue is full; retry in {retry_after_secs} s")]
+    Overloaded { retry_after_secs: u64 },
+    #[error("extraction did not finish within {0} s")]
+    Timeout(u64),
+    /// Our fault. The text is for the log only.
+    #[error("internal error: {0}")]
+    Internal(String),
+}
+
+/// What a client is told of an internal error.
+const INTERNAL_MESSAGE: &str =
+    "internal error; the server log has the details under this response's x-request-id";
+
+/// The JSON body of every error response.
+#[derive(Debug, Serialize, serde::Deserialize, utoipa::ToSchema)]
+pub struct ErrorBody {
+    pub error: ErrorDetail,
+}
+
+#[derive(Debug, Serialize, serde::Deserialize, utoipa::ToSchema)]
+pub struct ErrorDetail {
+    /// Stable machine-readable code, e.g. `unsupported_format`.
+    pub code: String,
+    pub message: String,
+    /// With `duplicate`: the stored model the upload duplicates.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub duplicate: Option<DuplicateMatch>,
+}
+
+impl AppError {
+    /// The ranking index's shelf failed (`rank::shelf`): by its kind only, since an I/O
+    /// error's text may name a file.
+    pub fn index(e: std::io::Error) -> Self {
+        AppError::Internal(format!("ranking index shelf: {}", e.kind()))
+    }
+
+    pub fn bad_request(code: &'static str, message: impl Into<String>) -> Self {
+        AppError::BadRequest {
+            code,
+            message: message.into(),
+        }
+    }
+
+    /// The message a client may see: the error itself, except for internal ones.
+    pub fn public_message(&self) -> String {
+        match self {
+            AppError::Internal(_) => INTERNAL_MESSAGE.to_string(),
+            other => other.to_string(),
+        }
+    }
+
+    fn status_and_code(&self) -> (StatusCode, &'static str) {
+        match self {
+            AppError::BadRequest { code, .. } => (StatusCode::BAD_REQUEST, code),
+            AppError::Unauthorized(_) => (StatusCode::UNAUTHORIZED, "unauthorized"),
+            AppError::Forbidden(_) => (StatusCode::FORBIDDEN, "forbidden"),
+            AppError::NotFound(_) => (StatusCode::NOT_FOUND, "not_found"),
+            AppError::Conflict(_) => (StatusCode::CONFLICT, "missing_descriptor"),
+            AppError::Duplicate(_) => (StatusCode::CONFLICT, "duplicate"),
+            AppError::PayloadTooLarge(_) => (StatusCode::PAYLOAD_TOO_LARGE, "payload_too_large"),
+            AppError::UnsupportedMediaType(_) => {
+                (StatusCode::UNSUPPORTED_MEDIA_TYPE, "unsupported_format")
+            }
+            AppError::Unprocessable(_) => (StatusCode::UNPROCESSABLE_ENTITY, "unusable_mesh"),
+            AppError::RateLimited { .. } => (StatusCode::TOO_MANY_REQUESTS, "rate_limited"),
+            AppError::Overloaded { .. } => (StatusCode::SERVICE_UNAVAILABLE, "overloaded"),
+            AppError::Timeout(_) => (StatusCode::SERVICE_UNAVAILABLE, "timeout"),
+            AppError::Internal(_) => (StatusCode::INTERNAL_SERVER_ERROR, "internal"),
+        }
+    }
+}
+
+impl IntoResponse for AppError {
+    fn into_response(self) -> Response {
+        let (status, code) = self.status_and_code();
+        if status.is_server_error() {
+            tracing::error!(%status, error = %self, "request failed");
+        }
+        let body = Json(ErrorBody {
+            error: ErrorDetail {
+                code: code.to_string(),
+                message: self.public_message(),
+                duplicate: match &self {
+                    AppError::Duplicate(found) => Some(found.clone()),
+                    _ => None,
+                },
+            },
+        });
+        match self {
+            AppError::Overloaded { retry_after_secs }
+            | AppError::RateLimited { retry_after_secs } => (
+                status,
+                [(header::RETRY_AFTER, retry_after_secs.to_string())],
+                body,
+            )
+                .into_response(),
+            AppError::Unauthorized(_) => (
+                status,
+                [(header::WWW_AUTHENTICATE, "Bearer realm=\"salient\"")],
+                body,
+            )
+                .into_response(),
+            _ => (status, body).into_response(),
+        }
+    }
+}
+
+/// Library errors: which are the client's fault and how (SPEC §8 statuses).
+impl From<salient_core::Error> for AppError {
+    fn from(e: salient_core::Error) -> Self {
+        use salient_core::Error as E;
+        match e {
+            E::UnknownFormat(_) => AppError::UnsupportedMediaType(e.to_string()),
+            E::TooLarge { .. } => AppError::PayloadTooLarge(e.to_string()),
+            E::NoTriangles
+            | E::OnlyDegenerate { .. }
+            | E::TooFewVertices { .. }
+            | E::NoFeatures
+            | E::ExtentOutOfRange { .. } => AppError::Unprocessable(e.to_string()),
+            E::Parse { .. }
+            | E::IndexOutOfRange { .. }
+            | E::NonFinite { .. }
+            | E::MissingResource { .. } => AppError::bad_request("bad_mesh", e.to_string()),
+            E::InvalidParameter { .. } => AppError::bad_request("invalid_parameter", e.to_string()),
+            E::Io { .. }
+            | E::Labels { .. }
+            | E::Manifest { .. }
+            | E::Report { .. }
+            | E::CorruptSignature { .. }
+            | E::SignatureFormat { .. } => AppError::Internal(e.to_string()),
+        }
+    }
+}
+
+impl From<InvalidId> for AppError {
+    fn from(e: InvalidId) -> Self {
+        AppError::bad_request("invalid_id", e.to_string())
+    }
+}
+
+impl From<StoreError> for AppError {
+    fn from(e: StoreError) -> Self {
+        AppError::Internal(e.to_string())
+    }
+}
+
+/// A rejection with axum's status: 413 for a body over the limit, else a bad request.
+fn rejection(status: StatusCode, code: &'static str, message: String) -> AppError {
+    if status == StatusCode::PAYLOAD_TOO_LARGE {
+        AppError::PayloadTooLarge(message)
+    } else if status == StatusCode::UNSUPPORTED_MEDIA_TYPE {
+        AppError::UnsupportedMediaType(message)
+    } else {
+        AppError::bad_request(code, message)
+    }
+}
+
+impl From<JsonRejection> for AppError {
+    fn from(r: JsonRejection) -> Self {
+        rejection(r.status(), "invalid_json", r.body_text())
+    }
+}
+
+impl From<QueryRejection> for AppError {
+    fn from(r: QueryRejection) -> Self {
+        rejection(r.status(), "invalid_query", r.body_text())
+    }
+}
+
+impl From<PathRejection> for AppError {
+    fn from(r: PathRejection) -> Self {
+        rejection(r.status(), "invalid_path", r.body_text())
+    }
+}
+
+impl From<BytesRejection> for AppError {
+    fn from(r: BytesRejection) -> Self {
+        rejection(r.status(), "invalid_body", r.body_text())
+    }
+}
+
+impl From<MultipartError> for AppError {
+    fn from(e: MultipartError) -> Self {
+        rejection(e.status(), "invalid_multipart", e.body_text())
+    }
+}

@@ -1,0 +1,227 @@
+//! Mesh uploads, as a raw body with the mesh's content type or as `multipart/form-data`
+//! (one mesh file, any glTF resources as further files, and the model's fields).
+
+use std::collections::BTreeMap;
+
+use axum::body::Bytes;
+use axum::extract::{FromRequest, Multipart, Request};
+use axum::http::header::CONTENT_TYPE;
+use serde::Deserialize;
+
+use axum::extract::FromRequestParts;
+
+use super::error::AppError;
+use crate::model::{Fields, ModelId, Upload};
+use salient_core::mesh::Format;
+
+/// `Path` with our rejection: a bad path is an [`AppError`] in the JSON shape.
+#[derive(FromRequestParts)]
+#[from_request(via(axum::extract::Path), rejection(AppError))]
+pub struct AppPath<T>(pub T);
+
+/// `Json` with our rejection.
+#[derive(FromRequest)]
+#[from_request(via(axum::Json), rejection(AppError))]
+pub struct AppJson<T>(pub T);
+
+/// `Query` with our rejection.
+#[derive(FromRequestParts)]
+#[from_request(via(axum::extract::Query), rejection(AppError))]
+pub struct AppQuery<T>(pub T);
+
+/// Descriptive fields of a model, from the query string or multipart fields.
+#[derive(Debug, Clone, Default, Deserialize, utoipa::IntoParams)]
+#[into_params(parameter_in = Query)]
+pub struct ModelFields {
+    /// Model id: letters, digits, `.`, `_`, `-`, at most 128, not starting with `.`.
+    /// Defaults to the first 16 hex digits of the content hash.
+    #[param(pattern = "^[A-Za-z0-9_-][A-Za-z0-9._-]{0,127}$")]
+    pub id: Option<String>,
+    pub name: Option<String>,
+    /// Comma-separated tags.
+    pub tags: Option<String>,
+    pub class: Option<String>,
+    /// Format of a raw body when its content type does not say it
+    /// (`obj`, `gltf`, `glb`, `off`, `ply`, `stl`).
+    pub format: Option<String>,
+}
+
+impl ModelFields {
+    /// The model's id, if the upload names one.
+    pub fn id(&self) -> Result<Option<ModelId>, AppError> {
+        Ok(self.id.as_deref().map(ModelId::parse).transpose()?)
+    }
+
+    /// The descriptive fields; tags trimmed, empty ones dropped.
+    pub fn fields(&self) -> Fields {
+        Fields {
+            name: self.name.clone(),
+            tags: self
+                .tags
+                .as_deref()
+                .unwrap_or("")
+                .split(',')
+                .map(str::trim)
+                .filter(|t| !t.is_empty())
+                .map(String::from)
+                .collect(),
+            class: self.class.clone(),
+        }
+    }
+}
+
+/// The `{id}` of a model's routes; the pattern states [`ModelId`]'s rule in the API
+/// description.
+#[derive(Debug, Deserialize, utoipa::IntoParams)]
+#[into_params(parameter_in = Path)]
+pub struct ModelPath {
+    /// Model id.
+    #[param(pattern = "^[A-Za-z0-9_-][A-Za-z0-9._-]{0,127}$")]
+    pub id: String,
+}
+
+impl ModelPath {
+    pub fn id(&self) -> Result<ModelId, AppError> {
+        Ok(ModelId::parse(&self.id)?)
+    }
+}
+
+/// A mesh file in a request body (documentation type for the OpenAPI description).
+#[derive(utoipa::ToSchema)]
+#[schema(value_type = String, format = Binary)]
+pub struct MeshFile(#[allow(dead_code)] Vec<u8>);
+
+/// The multipart form of an upload (documentation type for the OpenAPI description).
+#[derive(utoipa::ToSchema)]
+#[allow(dead_code)]
+pub struct MeshForm {
+    /// The mesh file (its name's extension gives the format); further files are glTF
+    /// resources, matched by file name.
+    #[schema(value_type = String, format = Binary)]
+    file: Vec<u8>,
+    id: Option<String>,
+    name: Option<String>,
+    tags: Option<String>,
+    class: Option<String>,
+    format: Option<String>,
+}
+
+/// An upload and the fields that came inside it (multipart); query fields are merged by the
+/// handler.
+pub struct MeshUpload {
+    pub upload: Upload,
+    pub fields: ModelFields,
+}
+
+fn format_named(name: &str) -> Result<Format, AppError> {
+    Format::from_extension(name)
+        .ok_or_else(|| AppError::UnsupportedMediaType(format!("unknown mesh format {name:?}")))
+}
+
+impl<S: Send + Sync> FromRequest<S> for MeshUpload {
+    type Rejection = AppError;
+
+    async fn from_request(request: Request, state: &S) -> Result<Self, AppError> {
+        let content_type = request
+            .headers()
+            .get(CONTENT_TYPE)
+            .and_then(|v| v.to_str().ok())
+            .unwrap_or("")
+            .to_string();
+        let query: ModelFields = axum::extract::Query::<ModelFields>::try_from_uri(request.uri())
+            .map(|q| q.0)
+            .map_err(AppError::from)?;
+        if content_type.starts_with("multipart/form-data") {
+            let multipart = Multipart::from_request(request, state)
+                .await
+                .map_err(|r| AppError::bad_request("invalid_multipart", r.body_text()))?;
+            return from_multipart(multipart, query).await;
+        }
+        let body = Bytes::from_request(request, state).await?;
+        if body.is_empty() {
+            return Err(AppError::bad_request(
+                "empty_body",
+                "the request has no mesh in its body",
+            ));
+        }
+        let essence = content_type
+            .split(';')
+            .next()
+            .unwrap_or("")
+            .trim()
+            .to_ascii_lowercase();
+        let format = match (&query.format, Format::from_content_type(&content_type)) {
+            (Some(name), _) => format_named(name)?,
+            (None, Some(format)) => format,
+            (None, None) if essence.is_empty() || essence == "application/octet-stream" => Format::sniff(&body)
+                .ok_or_else(|| AppError::UnsupportedMediaType("cannot tell the mesh format from the body; set Content-Type or ?format=".into()))?,
+            (None, None) => {
+                return Err(AppError::UnsupportedMediaType(format!(
+                    "unsupported content type {essence:?}; use model/obj, model/gltf-binary, model/gltf+json, model/stl, model/ply or model/x-off"
+                )))
+            }
+        };
+        Ok(MeshUpload {
+            upload: Upload::new(format, body, BTreeMap::new()),
+            fields: ModelFields {
+                format: None,
+                ..query
+            },
+        })
+    }
+}
+
+/// Multipart: text fields `id`, `name`, `tags`, `class`, `format` (over those of the query
+/// string); file fields are the mesh (the first whose name has a mesh extension) and its
+/// resources (by file name).
+async fn from_multipart(
+    mut multipart: Multipart,
+    mut fields: ModelFields,
+) -> Result<MeshUpload, AppError> {
+    let mut mesh: Option<(Format, Bytes)> = None;
+    let mut resources = BTreeMap::new();
+    while let Some(field) = multipart.next_field().await? {
+        let name = field.name().unwrap_or("").to_string();
+        match (field.file_name().map(String::from), name.as_str()) {
+            (None, "id" | "name" | "tags" | "class" | "format") => {
+                let value = field.text().await?;
+                let slot = match name.as_str() {
+                    "id" => &mut fields.id,
+                    "name" => &mut fields.name,
+                    "tags" => &mut fields.tags,
+                    "class" => &mut fields.class,
+                    _ => &mut fields.format,
+                };
+                *slot = Some(value);
+            }
+            (Some(file_name), _) => {
+                let bytes = field.bytes().await?;
+                match Format::from_extension(file_name.rsplit('.').next().unwrap_or("")) {
+                    Some(format) if mesh.is_none() => mesh = Some((format, bytes)),
+                    _ => {
+                        resources.insert(file_name, bytes);
+                    }
+                }
+            }
+            (None, other) => {
+                return Err(AppError::bad_request(
+                    "invalid_multipart",
+                    format!("unexpected field {other:?}"),
+                ));
+            }
+        }
+    }
+    let (mut format, mesh) = mesh.ok_or_else(|| {
+        AppError::bad_request(
+            "empty_body",
+            "no mesh file in the form (a file with a mesh extension)",
+        )
+    })?;
+    if let Some(name) = fields.format.take() {
+        format = format_named(&name)?;
+    }
+    Ok(MeshUpload {
+        upload: Upload::new(format, mesh, resources),
+        fields,
+    })
+}

@@ -1,0 +1,139 @@
+//! Persistent storage of models: records, signatures and the original files (SPEC §8).
+//!
+//! Behind a small trait so that the backend can change; [`SledStore`] is the default, as the
+//! product requires, and [`InMemoryStore`] serves tests and trials. Writes for one model are atomic and durable when they return: a model is
+//! either fully present (record, signature, files) or absent.
+
+mod memory;
+mod sled_store;
+
+use bytes::Bytes;
+
+use crate::model::{ModelId, ModelRecord, Upload};
+pub use memory::InMemoryStore;
+use salient_core::signature::Signature;
+pub use sled_store::SledStore;
+
+/// Errors of the storage layer.
+#[derive(Debug, thiserror::Error)]
+pub enum StoreError {
+    #[error("storage backend: {0}")]
+    Backend(#[from] sled::Error),
+    /// Stored bytes do not decode; the store is damaged.
+    #[error("corrupt store entry {key}: {message}")]
+    Corrupt { key: String, message: String },
+    /// The store was written by a newer version of salient.
+    #[error("the store has schema version {found}, this salient supports up to {supported}; upgrade salient")]
+    Incompatible { found: u32, supported: u32 },
+}
+
+pub type StoreResult<T> = Result<T, StoreError>;
+
+/// The upload `record` names, its files read by `blob` (SHA-256 → bytes); a file the record
+/// names but the store lacks means a damaged store.
+fn assemble_upload(
+    record: &ModelRecord,
+    blob: impl Fn(&str) -> StoreResult<Option<Bytes>>,
+) -> StoreResult<Upload> {
+    let read = |hash: &str| {
+        blob(hash)?.ok_or_else(|| StoreError::Corrupt {
+            key: hash.to_string(),
+            message: format!("blob of model {} missing", record.id),
+        })
+    };
+    let resources = record
+        .resources
+        .iter()
+        .map(|(uri, hash)| Ok((uri.clone(), read(hash)?)))
+        .collect::<StoreResult<_>>()?;
+    Ok(Upload::new(
+        record.format,
+        read(&record.mesh_blob)?,
+        resources,
+    ))
+}
+
+/// Data made from a model's upload and kept beside it, bound to its content: made again
+/// whenever missing, removed with the model.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
+pub enum Derived {
+    /// What a person sees of it (`salient_core::preview`).
+    Preview,
+    /// What a partial search picks its candidates by (`salient_core::descriptor::patch::Packed`).
+    Patches,
+}
+
+/// A stored model as the index needs it at start.
+pub struct Loaded {
+    pub record: ModelRecord,
+    pub signature: Vec<u8>,
+}
+
+/// The storage operations the service uses.
+pub trait Store: Send + Sync {
+    /// Adds or replaces `record.id` with its signature and files, atomically and durably.
+    /// Returns the replaced record, if any.
+    fn put(
+        &self,
+        record: &ModelRecord,
+        signature: &[u8],
+        upload: &Upload,
+    ) -> StoreResult<Option<ModelRecord>>;
+    /// Replaces the record and signature of `record.id` if the model still holds the upload
+    /// `record.content_hash` names (a re-extraction, an edit of its fields), atomically and
+    /// durably. Returns false, changing nothing, when the model was deleted or replaced
+    /// meanwhile.
+    fn update_model(&self, record: &ModelRecord, signature: &[u8]) -> StoreResult<bool>;
+    fn get(&self, id: &str) -> StoreResult<Option<ModelRecord>>;
+    fn signature(&self, id: &str) -> StoreResult<Option<Vec<u8>>>;
+    /// [`Store::signature`] decoded: what a response shows of a model's features (the
+    /// ranking index keeps only what it compares).
+    fn decoded_signature(&self, id: &str) -> StoreResult<Option<Signature>> {
+        self.signature(id)?
+            .map(|bytes| {
+                Signature::from_bytes(&bytes).map_err(|e| StoreError::Corrupt {
+                    key: id.to_string(),
+                    message: e.to_string(),
+                })
+            })
+            .transpose()
+    }
+    /// The original upload of a model, for re-extraction.
+    fn upload(&self, id: &str) -> StoreResult<Option<Upload>>;
+    /// One stored file by its SHA-256 (a record's `mesh_blob` or one of its `resources`).
+    fn blob(&self, hash: &str) -> StoreResult<Option<Bytes>>;
+    /// Removes a model and the files no other model uses. Returns the removed record.
+    fn delete(&self, id: &str) -> StoreResult<Option<ModelRecord>>;
+    /// Records in id order, starting after `after`, at most `limit`.
+    fn list(&self, after: Option<&str>, limit: usize) -> StoreResult<Vec<ModelRecord>>;
+    /// The id of the model holding an upload with this content hash.
+    fn find_content(&self, content_hash: &str) -> StoreResult<Option<ModelId>>;
+    /// Every model with its signature, in id order. Streamed: loading a large store holds one
+    /// model's bytes at a time, not all of them (700 MB at 100 000 models).
+    fn load_all(&self) -> Box<dyn Iterator<Item = StoreResult<Loaded>> + '_>;
+    fn len(&self) -> usize;
+    fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+    /// A model's entry of a derived cache, as [`Store::put_derived`] stored it.
+    fn derived(&self, cache: Derived, id: &str) -> StoreResult<Option<Vec<u8>>>;
+    /// Keeps `entry` in a derived cache for `id` if the model still holds the upload
+    /// `content_hash`; a model deleted or replaced meanwhile gets none (returns false). Not
+    /// flushed: an entry lost in a crash is made again. The entry goes with the model when it
+    /// is deleted or replaced.
+    fn put_derived(
+        &self,
+        cache: Derived,
+        id: &str,
+        content_hash: &str,
+        entry: &[u8],
+    ) -> StoreResult<bool>;
+    /// Every entry of a derived cache, in id order.
+    fn all_derived(
+        &self,
+        cache: Derived,
+    ) -> Box<dyn Iterator<Item = StoreResult<(ModelId, Vec<u8>)>> + '_>;
+    /// A small value the service keeps between runs (the progress of a re-extraction).
+    fn state(&self, key: &str) -> StoreResult<Option<Vec<u8>>>;
+    fn set_state(&self, key: &str, value: &[u8]) -> StoreResult<()>;
+}
