@@ -9,10 +9,11 @@ use std::collections::BTreeMap;
 use std::path::PathBuf;
 
 use criterion::{criterion_group, criterion_main, Criterion};
+use salient_core::display::UpAxis;
 use salient_core::mesh::{load_path, Format};
 use salient_core::pipeline::{compute, preview_of_file};
 use salient_core::preview::Preview;
-use salient_core::render::{png, thumbnail, UpAxis};
+use salient_core::render::{png, thumbnail};
 use salient_core::{Limits, Params};
 
 fn previews(c: &mut Criterion) {

@@ -6,7 +6,7 @@ use std::sync::Arc;
 
 use anyhow::Context;
 
-use salient_core::render::UpAxis;
+use salient_core::display::UpAxis;
 use salient_server::api::config::Secret;
 use salient_server::api::{app, App, AppState, Config};
 use salient_server::store::SledStore;

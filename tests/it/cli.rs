@@ -343,7 +343,7 @@ fn search_partial_finds_the_model_a_piece_was_cut_from() {
     shapes::write_obj(&collection.join("tube.obj"), &shapes::tube(0.3, 30, 24));
     shapes::write_obj(&collection.join("sphere.obj"), &shapes::icosphere(4));
     let part = dir.path().join("spike.obj");
-    let spike = salient_core::partial::cut(&star, DVec3::new(0.9, 0.0, 0.0), 0.6).unwrap();
+    let spike = salient_core::mesh::cut::cut(&star, DVec3::new(0.9, 0.0, 0.0), 0.6).unwrap();
     shapes::write_obj(&part, &spike);
     let (part, collection) = (part.to_str().unwrap(), collection.to_str().unwrap());
 

@@ -10,8 +10,9 @@
 use crate::shapes;
 
 use glam::DVec3;
+use salient_core::extraction::Extraction;
 use salient_core::mesh::RawMesh;
-use salient_core::pipeline::{extract, Extraction};
+use salient_core::pipeline::extract;
 use salient_core::{GeodesicRule, HeightRule, Params};
 use salient_eval::robustness::Perturbation;
 use std::f64::consts::FRAC_PI_2;

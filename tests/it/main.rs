@@ -26,6 +26,7 @@ mod eval_metrics;
 mod geodesic;
 mod golden;
 mod ingest;
+mod layout;
 mod lfd;
 mod load;
 mod openapi;

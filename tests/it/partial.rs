@@ -5,9 +5,10 @@
 use axum::http::StatusCode;
 use glam::DVec3;
 use salient_core::descriptor::patch::{piece, piece_distance, Layout, Packed, Patches, LEN};
+use salient_core::mesh::cut::cut;
 use salient_core::mesh::RawMesh;
 use salient_core::params::Params;
-use salient_core::partial::{cut, stored_patches, Part, Probe, Target};
+use salient_core::partial::{stored_patches, Part, Probe, Target};
 use salient_core::pipeline::compute;
 use salient_core::rank::{Index, Scope};
 use salient_core::similarity::{part_in, CostMatrix, Features};

@@ -6,9 +6,9 @@ use std::sync::Arc;
 
 use axum::http::{header, StatusCode};
 use glam::{DMat4, DVec3};
+use salient_core::display::{region_colour, SURFACE};
 use salient_core::preview::NO_REGION;
 use salient_core::rank::Method;
-use salient_core::render::{region_colour, SURFACE};
 use salient_server::api::config::Secret;
 use salient_server::api::Config;
 use salient_server::store::{Derived, InMemoryStore, Store};
@@ -195,7 +195,7 @@ fn read_glb(bytes: &[u8]) -> Glb {
 
 #[tokio::test]
 async fn preview_meshes_carry_regions_and_points_in_the_models_own_coordinates() {
-    let app = TestApp::with_config(|c| c.up_axis = salient_core::render::UpAxis::Z);
+    let app = TestApp::with_config(|c| c.up_axis = salient_core::display::UpAxis::Z);
     with_models(&app).await;
     let record = app.get_json("/v1/models/star").await;
     let features = record["features"].as_u64().unwrap() as usize;

@@ -3,7 +3,7 @@
 
 use std::path::PathBuf;
 
-use crate::mesh::Format;
+use crate::format::Format;
 
 /// Everything that can go wrong turning user input into a mesh or a signature.
 #[derive(Debug, thiserror::Error)]

@@ -33,10 +33,13 @@
 
 pub mod collection;
 pub mod descriptor;
+pub mod display;
 pub mod duplicate;
 pub mod ecc;
 pub mod emd;
 pub mod error;
+pub mod extraction;
+pub mod format;
 pub mod geodesic;
 pub mod mesh;
 pub mod params;

@@ -10,40 +10,17 @@ use std::time::Instant;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
-use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
 
 use crate::descriptor::{d2_histogram, GeodesicDescriptor, LightFieldDescriptor};
-use crate::ecc::{self, EccField, EccStats};
-use crate::mesh::{self, Format, PrepareStats, PreparedMesh, RawMesh, Resources, Topology};
+use crate::ecc;
+use crate::extraction::{Extraction, ExtractionStats};
+use crate::mesh::{self, Format, PreparedMesh, RawMesh, Resources, Topology};
 use crate::params::{Limits, Params};
 use crate::preview::Preview;
 use crate::salient;
 use crate::signature::{Feature, MeshHash, Signature, SignatureStats};
 use crate::Result;
-
-/// A prepared mesh with the ECC vector of each of its vertices.
-#[derive(Debug, Clone)]
-pub struct Extraction {
-    pub mesh: PreparedMesh,
-    pub topology: Topology,
-    pub ecc: EccField,
-    pub stats: ExtractionStats,
-}
-
-/// Everything an extraction counted and timed.
-/// Stored with every signature as JSON: a field added later takes its default in older ones.
-#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
-pub struct ExtractionStats {
-    pub load_seconds: f64,
-    pub mesh: PrepareStats,
-    pub topology_seconds: f64,
-    /// Mean edge length of the prepared mesh, in normalised units.
-    pub mean_edge_length: f64,
-    pub ecc: EccStats,
-    pub total_seconds: f64,
-}
 
 /// Loads `path` (format from its extension, or sniffed) and extracts.
 pub fn extract_path(path: &Path, params: &Params, limits: &Limits) -> Result<Extraction> {

@@ -13,11 +13,11 @@ use glam::DVec3;
 use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
 
+use crate::display::{region_colour, UpAxis, SURFACE};
 use crate::geodesic::{GeodesicScratch, Surface};
 use crate::mesh::simplify::collapsed_triangles;
 use crate::mesh::{PreparedMesh, Topology};
 use crate::params::GeodesicRule;
-use crate::render::{region_colour, UpAxis, SURFACE};
 use crate::signature::{Feature, Signature};
 
 /// Bumped when the preview's layout or the way it is made changes: every cached preview is

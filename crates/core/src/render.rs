@@ -11,9 +11,9 @@ use glam::{DMat3, DVec3};
 use image::codecs::png::PngEncoder;
 use image::imageops::FilterType;
 use image::{ImageEncoder, Rgb, RgbImage};
-use serde::{Deserialize, Serialize};
 
-use crate::pipeline::Extraction;
+use crate::display::{region_colour, UpAxis, SURFACE};
+use crate::extraction::Extraction;
 use crate::preview::{Preview, NO_REGION};
 use crate::raster::fill_triangle;
 use crate::salient::SalientPoint;
@@ -23,17 +23,6 @@ use crate::{Error, Result};
 /// The colour of salient points.
 pub const POINT_COLOUR: Rgb<u8> = Rgb([230, 20, 20]);
 
-/// Region colours, in point order and repeating; none is red, so points stay visible.
-const REGION_COLOURS: [[f64; 3]; 6] = [
-    [1.0, 0.85, 0.2],
-    [0.25, 0.75, 0.95],
-    [0.45, 0.85, 0.35],
-    [0.7, 0.5, 0.95],
-    [1.0, 0.6, 0.2],
-    [0.3, 0.9, 0.8],
-];
-/// The colour of the surface outside salient regions.
-pub const SURFACE: [f64; 3] = [0.78, 0.78, 0.8];
 const BACKGROUND: Rgb<u8> = Rgb([250, 250, 250]);
 
 /// An orthographic view of the unit sphere the mesh is normalised into (SPEC §1.4).
@@ -41,35 +30,6 @@ const BACKGROUND: Rgb<u8> = Rgb([250, 250, 250]);
 pub struct Camera {
     /// World to view: the view looks along −z, with +y up.
     rotation: DMat3,
-}
-
-/// Which of a model's axes points up. File formats do not say (glTF's is +y by its
-/// specification, STL files and CAD exports are mostly +z): a library chooses for its own.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum UpAxis {
-    #[default]
-    Y,
-    Z,
-}
-
-impl UpAxis {
-    /// Turns the model so that its up axis is +y.
-    fn upright(self) -> DMat3 {
-        match self {
-            UpAxis::Y => DMat3::IDENTITY,
-            UpAxis::Z => DMat3::from_rotation_x(-std::f64::consts::FRAC_PI_2),
-        }
-    }
-
-    pub const ALL: [UpAxis; 2] = [UpAxis::Y, UpAxis::Z];
-
-    pub fn as_str(self) -> &'static str {
-        match self {
-            UpAxis::Y => "y",
-            UpAxis::Z => "z",
-        }
-    }
 }
 
 impl Camera {
@@ -234,11 +194,6 @@ impl Tile {
             }
         }
     }
-}
-
-/// The colour of salient region `i` (regions in feature order, the palette repeating).
-pub fn region_colour(i: usize) -> [f64; 3] {
-    REGION_COLOURS[i % REGION_COLOURS.len()]
 }
 
 /// The mesh of `extraction` seen by each of `cameras` in `size`-pixel tiles side by side, with

@@ -25,8 +25,8 @@
 use serde::{Deserialize, Serialize};
 
 use crate::descriptor::{GeodesicDescriptor, LightFieldDescriptor};
+use crate::extraction::ExtractionStats;
 use crate::params::Params;
-use crate::pipeline::ExtractionStats;
 use crate::salient::SalientStats;
 use crate::{Error, Result};
 

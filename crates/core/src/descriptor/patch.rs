@@ -13,8 +13,8 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
 use super::d2::sample_surface;
+use crate::mesh::cut::{cut, near};
 use crate::mesh::RawMesh;
-use crate::partial::{cut, near};
 
 /// Where a model's patches are cut: around how many centres, and balls of which radii, in
 /// normalised units (the model's radius is 1, SPEC §1.4).

@@ -1,6 +1,7 @@
 //! Mesh loading and preparation (SPEC §1): load → weld → orient → simplify → normalise →
 //! smooth.
 
+pub mod cut;
 pub mod load;
 pub mod orient;
 pub mod prepare;

@@ -1,5 +1,5 @@
 //! Splitting triangles, so that a cut along triangle centroids follows a curve closely
-//! (`crate::partial::cut`): on a low-poly model a triangle can be larger than the part.
+//! (`crate::mesh::cut`): on a low-poly model a triangle can be larger than the part.
 
 use std::collections::HashMap;
 

@@ -11,9 +11,9 @@ pub use region::{area, region, Region};
 
 use serde::{Deserialize, Serialize};
 
+use crate::extraction::Extraction;
 use crate::geodesic::GeodesicScratch;
 use crate::params::{CandidateRule, Params, RegionRule};
-use crate::pipeline::Extraction;
 
 /// A salient point with its region.
 #[derive(Debug, Clone, PartialEq)]

@@ -6,8 +6,8 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
+use salient_core::display::UpAxis;
 use salient_core::params::{Limits, Params};
-use salient_core::render::UpAxis;
 
 /// Everything `salient serve` can be told.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

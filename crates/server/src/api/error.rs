@@ -12,7 +12,7 @@ use axum::response::{IntoResponse, Response};
 use axum::Json;
 use serde::Serialize;
 
-use super::duplicates::DuplicateMatch;
+use super::evidence::DuplicateMatch;
 use crate::model::InvalidId;
 use crate::store::StoreError;
 

@@ -10,7 +10,8 @@ use serde::Deserialize;
 
 use super::error::{AppError, ErrorBody};
 use super::models::record_of;
-use super::upload::{AppPath, MeshFile, ModelPath};
+use super::request::{AppPath, ModelPath};
+use super::upload::MeshFile;
 use super::AppState;
 
 /// The `{id}` and `{name}` of a glTF resource route.

@@ -7,6 +7,7 @@ mod catalog;
 pub mod config;
 pub mod duplicates;
 pub mod error;
+pub mod evidence;
 mod files;
 mod metrics;
 mod models;
@@ -17,6 +18,7 @@ pub mod pool;
 mod previews;
 mod rankers;
 mod reindex;
+pub mod request;
 mod search;
 pub mod upload;
 

@@ -9,7 +9,8 @@ use serde::{Deserialize, Serialize};
 
 use super::duplicates::duplicates_of;
 use super::error::{AppError, ErrorBody};
-use super::upload::{AppJson, AppPath, AppQuery, MeshUpload, ModelFields, ModelPath};
+use super::request::{page_size, AppJson, AppPath, AppQuery, ModelPath};
+use super::upload::{MeshUpload, ModelFields};
 use super::AppState;
 use crate::model::{ModelId, ModelRecord};
 use salient_core::duplicate::Evidence;
@@ -155,18 +156,6 @@ pub struct ModelPage {
     pub models: Vec<ModelRecord>,
     /// Pass as `after` to get the next page; absent on the last page.
     pub next: Option<String>,
-}
-
-/// The page size of a listing: `limit`, 1–1000, 100 when not given.
-pub(super) fn page_size(limit: Option<usize>) -> Result<usize, AppError> {
-    let limit = limit.unwrap_or(100);
-    if !(1..=1000).contains(&limit) {
-        return Err(AppError::bad_request(
-            "invalid_query",
-            "limit must be between 1 and 1000",
-        ));
-    }
-    Ok(limit)
 }
 
 /// List models in id order, a page at a time.

@@ -9,7 +9,8 @@ use serde::{Deserialize, Serialize};
 
 use super::error::{AppError, ErrorBody};
 use super::models::no_model;
-use super::upload::{AppPath, AppQuery, MeshUpload, ModelPath};
+use super::request::{AppPath, AppQuery, ModelPath};
+use super::upload::MeshUpload;
 use super::{App, AppState, Snapshot};
 use crate::model::ModelId;
 use crate::model::Upload;

@@ -8,26 +8,9 @@ use axum::extract::{FromRequest, Multipart, Request};
 use axum::http::header::CONTENT_TYPE;
 use serde::Deserialize;
 
-use axum::extract::FromRequestParts;
-
 use super::error::AppError;
 use crate::model::{Fields, ModelId, Upload};
 use salient_core::mesh::Format;
-
-/// `Path` with our rejection: a bad path is an [`AppError`] in the JSON shape.
-#[derive(FromRequestParts)]
-#[from_request(via(axum::extract::Path), rejection(AppError))]
-pub struct AppPath<T>(pub T);
-
-/// `Json` with our rejection.
-#[derive(FromRequest)]
-#[from_request(via(axum::Json), rejection(AppError))]
-pub struct AppJson<T>(pub T);
-
-/// `Query` with our rejection.
-#[derive(FromRequestParts)]
-#[from_request(via(axum::extract::Query), rejection(AppError))]
-pub struct AppQuery<T>(pub T);
 
 /// Descriptive fields of a model, from the query string or multipart fields.
 #[derive(Debug, Clone, Default, Deserialize, utoipa::IntoParams)]
@@ -67,22 +50,6 @@ impl ModelFields {
                 .collect(),
             class: self.class.clone(),
         }
-    }
-}
-
-/// The `{id}` of a model's routes; the pattern states [`ModelId`]'s rule in the API
-/// description.
-#[derive(Debug, Deserialize, utoipa::IntoParams)]
-#[into_params(parameter_in = Path)]
-pub struct ModelPath {
-    /// Model id.
-    #[param(pattern = "^[A-Za-z0-9_-][A-Za-z0-9._-]{0,127}$")]
-    pub id: String,
-}
-
-impl ModelPath {
-    pub fn id(&self) -> Result<ModelId, AppError> {
-        Ok(ModelId::parse(&self.id)?)
     }
 }
 

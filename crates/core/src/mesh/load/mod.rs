@@ -13,122 +13,15 @@ mod ply;
 mod stl;
 
 use std::collections::HashMap;
-use std::fmt;
 use std::path::{Component, Path, PathBuf};
 
 use crate::error::{Error, Result};
 use crate::mesh::RawMesh;
 use crate::params::Limits;
 
-/// A supported mesh file format.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum Format {
-    /// Wavefront OBJ (text).
-    Obj,
-    /// glTF 2.0 JSON (`.gltf`), buffers embedded as `data:` URIs or in sibling files.
-    Gltf,
-    /// Binary glTF 2.0 (`.glb`).
-    Glb,
-    /// Object File Format (text; binary OFF is refused).
-    Off,
-    /// Stanford PLY (text or binary).
-    Ply,
-    /// STereoLithography (text or binary).
-    Stl,
-}
-
-impl fmt::Display for Format {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.write_str(match self {
-            Format::Obj => "OBJ",
-            Format::Gltf => "glTF",
-            Format::Glb => "GLB",
-            Format::Off => "OFF",
-            Format::Ply => "PLY",
-            Format::Stl => "STL",
-        })
-    }
-}
+pub use crate::format::Format;
 
 impl Format {
-    /// Every supported format.
-    pub const ALL: [Format; 6] = [
-        Format::Obj,
-        Format::Gltf,
-        Format::Glb,
-        Format::Off,
-        Format::Ply,
-        Format::Stl,
-    ];
-
-    /// The format of a file extension (without the dot, any case).
-    pub fn from_extension(ext: &str) -> Option<Format> {
-        match ext.to_ascii_lowercase().as_str() {
-            "obj" => Some(Format::Obj),
-            "gltf" => Some(Format::Gltf),
-            "glb" => Some(Format::Glb),
-            "off" => Some(Format::Off),
-            "ply" => Some(Format::Ply),
-            "stl" => Some(Format::Stl),
-            _ => None,
-        }
-    }
-
-    /// The format named by a path's extension.
-    pub fn from_path(path: &Path) -> Option<Format> {
-        Format::from_extension(path.extension()?.to_str()?)
-    }
-
-    /// The format of an HTTP `Content-Type` (parameters such as `; charset=utf-8` ignored).
-    /// Generic types (`application/octet-stream`, `text/plain`) give `None`: sniff instead.
-    pub fn from_content_type(content_type: &str) -> Option<Format> {
-        let essence = content_type.split(';').next()?.trim().to_ascii_lowercase();
-        match essence.as_str() {
-            "model/obj" | "application/x-obj" | "text/x-obj" => Some(Format::Obj),
-            "model/gltf+json" => Some(Format::Gltf),
-            "model/gltf-binary" => Some(Format::Glb),
-            "model/off" | "model/x-off" | "application/off" | "application/x-off" => {
-                Some(Format::Off)
-            }
-            "model/ply" | "model/x-ply" | "application/ply" | "application/x-ply" => {
-                Some(Format::Ply)
-            }
-            "model/stl"
-            | "model/x.stl-ascii"
-            | "model/x.stl-binary"
-            | "application/sla"
-            | "application/vnd.ms-pki.stl"
-            | "application/x-stl" => Some(Format::Stl),
-            _ => None,
-        }
-    }
-
-    /// The content type a client sends a file of this format with (the inverse of
-    /// [`Format::from_content_type`]).
-    /// The usual file extension, without the dot.
-    pub fn extension(self) -> &'static str {
-        match self {
-            Format::Obj => "obj",
-            Format::Gltf => "gltf",
-            Format::Glb => "glb",
-            Format::Off => "off",
-            Format::Ply => "ply",
-            Format::Stl => "stl",
-        }
-    }
-
-    pub fn media_type(self) -> &'static str {
-        match self {
-            Format::Obj => "model/obj",
-            Format::Gltf => "model/gltf+json",
-            Format::Glb => "model/gltf-binary",
-            Format::Off => "model/x-off",
-            Format::Ply => "model/ply",
-            Format::Stl => "model/stl",
-        }
-    }
-
     /// Recognises a format from the first bytes (magic numbers and first keywords), for uploads
     /// without a usable name or content type.
     pub fn sniff(bytes: &[u8]) -> Option<Format> {
