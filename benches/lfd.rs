@@ -21,7 +21,7 @@ use salient_core::collection::find_meshes;
 use salient_core::descriptor::lfd::{ImageFeatures, LIGHT_FIELDS};
 use salient_core::descriptor::LightFieldDescriptor;
 use salient_core::mesh::{load_path, prepare, PreparedMesh};
-use salient_core::rank::{Index, Method};
+use salient_core::rank::{Index, Method, Request, Search};
 use salient_core::{Limits, Params};
 
 fn prepared(path: PathBuf) -> PreparedMesh {
@@ -115,7 +115,9 @@ fn search_100k(c: &mut Criterion) {
         .collect();
     let (mut evaluated, mut pruned) = (0, 0);
     for q in &queries {
-        let r = index.search(q, 10, Method::Lfd).expect("ranks");
+        let r = index
+            .search(&Request::model(q, Method::Lfd, 10))
+            .expect("ranks");
         evaluated += r.evaluated;
         pruned += r.pruned;
     }
@@ -129,7 +131,13 @@ fn search_100k(c: &mut Criterion) {
     group.sample_size(10);
     let mut next = queries.iter().cycle();
     group.bench_function("top10_of_100k", |b| {
-        b.iter(|| index.search(next.next().expect("cycles"), 10, Method::Lfd))
+        b.iter(|| {
+            index.search(&Request::model(
+                next.next().expect("cycles"),
+                Method::Lfd,
+                10,
+            ))
+        })
     });
     group.finish();
 }

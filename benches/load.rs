@@ -1,4 +1,4 @@
-//! Load figures of the HTTP service (issues #5 and #13), against the real release binary on a
+//! Load figures of the HTTP service (`docs/results/README.md`, "Cost"), against the real release binary on a
 //! loopback port, written to `target/salient-bench/load.json` and printed as tables.
 //!
 //! `cargo bench --bench load` (minutes on 2 cores; the 100 000-model size about half an hour).

@@ -1,4 +1,4 @@
-//! What a thumbnail costs (issue #11): a model's preview made from its upload and signature
+//! What a thumbnail costs (SPEC §8): a model's preview made from its upload and signature
 //! (the first request: load, prepare, regions regrown, decimation), then a 256-pixel
 //! thumbnail from the cached preview (decode, draw, PNG), and the 3D view's GLB.
 //!

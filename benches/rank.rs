@@ -13,7 +13,7 @@ use std::time::Instant;
 use rand::SeedableRng;
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
-use salient_core::rank::{Index, Method, Scope};
+use salient_core::rank::{Index, Method, Request, Scope, Search};
 use salient_core::similarity::compare;
 use salient_core::{Params, Signature};
 
@@ -62,7 +62,7 @@ fn search_100k(c: &mut Criterion) {
     for method in [Method::Ecc, Method::Hybrid] {
         let (mut evaluated, mut pruned) = (0, 0);
         for (_, q) in &queries {
-            let r = index.search(q, 10, method).expect("ranks");
+            let r = index.search(&Request::model(q, method, 10)).expect("ranks");
             evaluated += r.evaluated;
             pruned += r.pruned;
         }
@@ -79,13 +79,19 @@ fn search_100k(c: &mut Criterion) {
             let mut i = 0;
             b.iter(|| {
                 i = (i + 1) % queries.len();
-                index.search(&queries[i].1, 10, method).expect("ranks")
+                index
+                    .search(&Request::model(&queries[i].1, method, 10))
+                    .expect("ranks")
             })
         });
     }
     for method in [Method::D2, Method::Geodesic] {
         group.bench_function(format!("{method}_top10"), |b| {
-            b.iter(|| index.search(&queries[0].1, 10, method).expect("ranks"))
+            b.iter(|| {
+                index
+                    .search(&Request::model(&queries[0].1, method, 10))
+                    .expect("ranks")
+            })
         });
     }
     group.finish();
@@ -196,15 +202,10 @@ fn real_signatures(_: &mut Criterion) {
                 let clock = Instant::now();
                 let ranking = one_thread.install(|| {
                     index
-                        .search_where(
-                            query,
-                            10,
-                            method,
-                            &Scope {
-                                without: *id,
-                                keep: None,
-                            },
-                        )
+                        .search(&Request::model(query, method, 10).scope(Scope {
+                            without: *id,
+                            keep: None,
+                        }))
                         .expect("ranks")
                 });
                 ms.push(clock.elapsed().as_secs_f64() * 1e3);

@@ -13,7 +13,7 @@ use salient_core::collection::{find_meshes, SignatureCache, Source};
 use salient_core::descriptor::patch::Packed;
 use salient_core::mesh::load_path;
 use salient_core::partial::{by_residual, nearest_first, Part, Probe, Target};
-use salient_core::rank::{Index, Method, Scope};
+use salient_core::rank::{Index, Method, Request, Search};
 use salient_core::signature::Signature;
 use salient_core::Limits;
 
@@ -134,7 +134,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         ))
     };
     if let Query::Whole(signature) = &query {
-        if !method.comparable(signature) {
+        if !method.ranks(&**signature) {
             anyhow::bail!(
                 "{}: the query signature has no {method} descriptor (made by an older salient); extract it again",
                 args.query.display(),
@@ -182,14 +182,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
 
     let clock = Instant::now();
     let unreadable = "cannot read the index's file in the temporary folder";
-    let mut candidates = 0;
-    let (ranking, scales) = match &query {
-        Query::Whole(signature) => (
-            index
-                .search(signature, args.k, method)
-                .context(unreadable)?,
-            Vec::new(),
-        ),
+    let ranking = match &query {
+        Query::Whole(signature) => index
+            .search(&Request::model(signature, method, args.k))
+            .context(unreadable)?,
         Query::Part(part, probe) => {
             // The patches of every model, cached beside the signatures, nearest the part
             // first, as the service keeps them.
@@ -208,13 +204,12 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             };
             let nearest = nearest_first(nearest);
             let verified = params.similarity.partial.verified;
-            let ranked = index
-                .search_partial(part, args.k, &Scope::default(), (&nearest, verified))
-                .context(unreadable)?;
-            candidates = ranked.candidates;
-            (ranked.ranking, ranked.scales)
+            index
+                .search(&Request::part(part, &nearest, verified, args.k))
+                .context(unreadable)?
         }
     };
+    let candidates = ranking.candidates;
     let mut results: Vec<Row> = ranking
         .hits
         .into_iter()
@@ -223,7 +218,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             rank: i + 1,
             id: hit.id,
             distance: hit.distance,
-            part_scale: scales.get(i).copied(),
+            part_scale: hit.part_scale,
             residual: None,
         })
         .collect();

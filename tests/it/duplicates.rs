@@ -1,4 +1,4 @@
-//! Near-duplicates (issue #14), with known answers: a generated model and its disguised copies
+//! Near-duplicates (`docs/results/duplicates/`), with known answers: a generated model and its disguised copies
 //! are one asset, another pose of it and other shapes are not; over HTTP, the check, the
 //! rejecting upload and the library's groups.
 

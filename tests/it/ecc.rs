@@ -330,7 +330,7 @@ fn fast_marching_brings_the_sphere_nearer_its_closed_form() {
     assert!(again.ecc.vectors().eq(ex.ecc.vectors()));
 }
 
-/// Issue #12: Gaussian noise (0.5 % of the diagonal, a third of an edge here) makes bumps the
+/// SPEC §1.7: Gaussian noise (0.5 % of the diagonal, a third of an edge here) makes bumps the
 /// first waves read as tips; the rough mesh is smoothed (`mesh.smoothing`) and the star keeps
 /// its five tips with at most one spurious point, where the unsmoothed mesh has four times as
 /// many points as tips.

@@ -1,4 +1,4 @@
-//! The geodesic distributions (`descriptor::geodesic`, issue #12): nearly unchanged by
+//! The geodesic distributions (`descriptor::geodesic`, SPEC §9): nearly unchanged by
 //! bending, which moves the extrinsic D2; a model of several copies of a part is described
 //! like one.
 

@@ -720,6 +720,43 @@ fn repository() -> &'static Path {
     Path::new(env!("CARGO_MANIFEST_DIR"))
 }
 
+/// README's layout table names paths that exist, every crate, and every top module of each.
+#[test]
+fn the_readme_layout_table_names_every_crate_and_top_module() {
+    let readme = fs::read_to_string(repository().join("README.md")).unwrap();
+    let listed = layout_table_paths(&readme);
+    let missing: Vec<&String> = listed
+        .iter()
+        .filter(|path| !repository().join(path).exists())
+        .collect();
+    assert!(missing.is_empty(), "listed but missing: {missing:?}");
+    let names = |path: &str| {
+        listed
+            .iter()
+            .any(|l| l == path || l.starts_with(&format!("{}/", path.trim_end_matches('/'))))
+    };
+    for root in CRATE_ROOTS {
+        let (dir, _) = root.rsplit_once('/').unwrap();
+        if let Some(krate) = dir.strip_suffix("/src") {
+            assert!(names(&format!("{krate}/")), "crate {krate} is not listed");
+        }
+        let text = fs::read_to_string(repository().join(root)).unwrap();
+        for line in text.lines().map(str::trim) {
+            let Some(module) = line
+                .strip_prefix("pub mod ")
+                .or_else(|| line.strip_prefix("mod "))
+                .and_then(|rest| rest.strip_suffix(';'))
+            else {
+                continue;
+            };
+            assert!(
+                names(&format!("{dir}/{module}.rs")) || names(&format!("{dir}/{module}/")),
+                "{dir}/{module} is not listed"
+            );
+        }
+    }
+}
+
 #[test]
 fn no_crate_has_an_import_cycle() {
     for root in CRATE_ROOTS {

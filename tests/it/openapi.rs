@@ -1,7 +1,7 @@
 //! `openapi.yaml` is the service's contract: it must be exactly what the code's route
 //! annotations generate, and every path and method in it must reach a handler.
 //!
-//! After an intended API change: `SALIENT_UPDATE_OPENAPI=1 cargo test --test openapi`.
+//! After an intended API change: `SALIENT_UPDATE_OPENAPI=1 cargo test --test it openapi`.
 
 use std::path::Path;
 
@@ -24,7 +24,7 @@ fn committed_document_matches_the_code() {
     let on_disk = std::fs::read_to_string(committed()).unwrap();
     assert!(
         on_disk == generated,
-        "openapi.yaml is stale: run `SALIENT_UPDATE_OPENAPI=1 cargo test --test openapi` and review the diff"
+        "openapi.yaml is stale: run `SALIENT_UPDATE_OPENAPI=1 cargo test --test it openapi` and review the diff"
     );
 }
 

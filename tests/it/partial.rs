@@ -1,4 +1,4 @@
-//! Partial retrieval (issue #14), with known answers: a piece cut from a generated model
+//! Partial retrieval (`docs/results/partial/`), with known answers: a piece cut from a generated model
 //! finds that model among others, the pruned ranking equals a full scan, and over HTTP
 //! `mode=partial` answers with the sizes it tried and rejects what does not apply.
 
@@ -10,7 +10,7 @@ use salient_core::mesh::RawMesh;
 use salient_core::params::Params;
 use salient_core::partial::{stored_patches, Part, Probe, Target};
 use salient_core::pipeline::compute;
-use salient_core::rank::{Index, Scope};
+use salient_core::rank::{Index, Request, Search};
 use salient_core::similarity::{part_in, CostMatrix, Features};
 use salient_server::store::{Derived, InMemoryStore, Store};
 use serde_json::Value;
@@ -20,7 +20,7 @@ use crate::server::obj;
 use crate::shapes;
 
 /// A library whose patches are not made yet.
-const NO_PATCHES: &[(f64, &str)] = &[];
+const NO_PATCHES: &[(f64, String)] = &[];
 
 /// The collection: a star with five spikes, and shapes without them.
 fn collection() -> Vec<(&'static str, RawMesh)> {
@@ -246,9 +246,9 @@ fn a_piece_cut_from_a_model_finds_it_and_the_pruned_ranking_equals_a_full_scan()
     assert_eq!(part.sizes().count(), scales.len());
 
     let ranked = index
-        .search_partial(&part, 4, &Scope::default(), (NO_PATCHES, 0))
+        .search(&Request::part(&part, NO_PATCHES, 0, 4))
         .unwrap();
-    let ids: Vec<&str> = ranked.ranking.hits.iter().map(|h| h.id.as_str()).collect();
+    let ids: Vec<&str> = ranked.hits.iter().map(|h| h.id.as_str()).collect();
     assert_eq!(ids[0], "star", "{ranked:?}");
 
     // Every model's exact fit, sorted: the pruned ranking's order and distances.
@@ -270,20 +270,21 @@ fn a_piece_cut_from_a_model_finds_it_and_the_pruned_ranking_equals_a_full_scan()
     full.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(b.1)));
     let expected: Vec<(f64, &str)> = full.into_iter().take(4).collect();
     let got: Vec<(f64, &str)> = ranked
-        .ranking
         .hits
         .iter()
         .map(|h| (h.distance, h.id.as_str()))
         .collect();
     assert_eq!(got, expected);
-    assert_eq!(ranked.scales.len(), 4);
-    assert!(ranked.scales.iter().all(|s| scales.contains(s)));
+    assert!(ranked
+        .hits
+        .iter()
+        .all(|h| h.part_scale.is_some_and(|s| scales.contains(&s))));
 
     // The top hit alone, with a smaller k, is pruned to it.
     let top = index
-        .search_partial(&part, 1, &Scope::default(), (NO_PATCHES, 0))
+        .search(&Request::part(&part, NO_PATCHES, 0, 1))
         .unwrap();
-    assert_eq!(top.ranking.hits[0].id, "star");
+    assert_eq!(top.hits[0].id, "star");
 }
 
 /// `mode=partial`'s candidates: the stored patches' nearest that the part fits, then the
@@ -298,30 +299,21 @@ fn the_patches_nearest_are_verified_first_then_the_fits_best_of_the_models_witho
     let scales = &params.similarity.partial.scales;
     let part = Part::extract(&spike(), &params, scales, &params.similarity).unwrap();
     let fit = index
-        .search_partial(&part, 4, &Scope::default(), (NO_PATCHES, 0))
+        .search(&Request::part(&part, NO_PATCHES, 0, 4))
         .unwrap();
-    let order: Vec<&str> = fit.ranking.hits.iter().map(|h| h.id.as_str()).collect();
+    let order: Vec<&str> = fit.hits.iter().map(|h| h.id.as_str()).collect();
     assert_eq!((order.len(), order[0], fit.candidates), (4, "star", 0));
-    let distance = |id: &str| {
-        fit.ranking
-            .hits
-            .iter()
-            .find(|h| h.id == id)
-            .unwrap()
-            .distance
-    };
+    let distance = |id: &str| fit.hits.iter().find(|h| h.id == id).unwrap().distance;
 
     // The fit's last two have patches, the tube's the nearest; "lost" is no model.
     let (third, last) = (order[2], order[3]);
-    let nearest = [(0.1, "lost"), (0.2, last), (0.3, third)];
-    let ranked = index
-        .search_partial(&part, 4, &Scope::default(), (&nearest, 1))
-        .unwrap();
-    let ids: Vec<&str> = ranked.ranking.hits.iter().map(|h| h.id.as_str()).collect();
+    let nearest = [(0.1, "lost"), (0.2, last), (0.3, third)].map(|(d, id)| (d, id.to_string()));
+    let ranked = index.search(&Request::part(&part, &nearest, 1, 4)).unwrap();
+    let ids: Vec<&str> = ranked.hits.iter().map(|h| h.id.as_str()).collect();
     // The patches' nearest model, the fit's best (unpatched), then the rest in the fit's order.
     assert_eq!(ranked.candidates, 2);
     assert_eq!(ids, [last, "star", order[1], third]);
-    for hit in &ranked.ranking.hits {
+    for hit in &ranked.hits {
         assert_eq!(
             hit.distance,
             distance(&hit.id),
@@ -329,31 +321,29 @@ fn the_patches_nearest_are_verified_first_then_the_fits_best_of_the_models_witho
             hit.id
         );
     }
-    assert_eq!(ranked.scales.len(), 4);
+    assert!(ranked.hits.iter().all(|h| h.part_scale.is_some()));
     assert_eq!(
-        ranked.ranking.evaluated, fit.ranking.evaluated,
+        ranked.evaluated, fit.evaluated,
         "no fit outside the fit's 4"
     );
 
     // Every model patched: the fit's best is verified only if the patches choose it.
-    let all: Vec<(f64, &str)> = order
+    let all: Vec<(f64, String)> = order
         .iter()
         .rev()
         .enumerate()
-        .map(|(i, &id)| (i as f64, id))
+        .map(|(i, &id)| (i as f64, id.to_string()))
         .collect();
-    let ranked = index
-        .search_partial(&part, 2, &Scope::default(), (&all, 2))
-        .unwrap();
-    let ids: Vec<&str> = ranked.ranking.hits.iter().map(|h| h.id.as_str()).collect();
+    let ranked = index.search(&Request::part(&part, &all, 2, 2)).unwrap();
+    let ids: Vec<&str> = ranked.hits.iter().map(|h| h.id.as_str()).collect();
     assert_eq!(ranked.candidates, 2);
     assert_eq!(ids, [last, third, "star", order[1]]);
     let top2 = index
-        .search_partial(&part, 2, &Scope::default(), (NO_PATCHES, 2))
+        .search(&Request::part(&part, NO_PATCHES, 2, 2))
         .unwrap();
     assert_eq!(
-        ranked.ranking.evaluated,
-        top2.ranking.evaluated + 2,
+        ranked.evaluated,
+        top2.evaluated + 2,
         "the patches' two are fitted besides the fit's own"
     );
 }

@@ -1,4 +1,4 @@
-//! What a person sees (issue #11 §2–3): thumbnails, preview meshes, explained results, the
+//! What a person sees (SPEC §8): thumbnails, preview meshes, explained results, the
 //! comparison picture and the page, on generated meshes whose salient features are known (a
 //! sphere with five tips, the tips among its features) and a real CAPOD model.
 

@@ -5,7 +5,7 @@ use crate::shapes;
 use crate::synthetic;
 
 use salient_core::params::{HybridParams, Term};
-use salient_core::rank::{distance, fuse, Index, Method, Ranking, Scope};
+use salient_core::rank::{distance, fuse, Index, Method, Ranking, Request, Scope, Search};
 use salient_core::similarity::{centroid_bound, lower_bound, Features, Summary};
 use salient_core::{Params, Signature};
 
@@ -17,8 +17,12 @@ fn pruned_as_a_full_scan(
     (k, method): (usize, Method),
     setting: &str,
 ) -> usize {
-    let fast = index.search(query, k, method).expect("ranks");
-    let full = index.search_exhaustive(query, k, method).expect("ranks");
+    let fast = index
+        .search(&Request::model(query, method, k))
+        .expect("ranks");
+    let full = index
+        .search(&Request::model(query, method, k).exhaustive())
+        .expect("ranks");
     assert_eq!(fast.hits, full.hits, "{setting}");
     assert_eq!(fast.evaluated + fast.pruned, index.len());
     fast.pruned
@@ -63,18 +67,34 @@ fn ties_are_broken_by_id_and_methods_agree_on_self() {
     }
     index.insert("aa-copy", &query).expect("shelved");
     for method in [Method::Ecc, Method::D2] {
-        let ranking = index.search(&query, 3, method).expect("ranks");
+        let ranking = index
+            .search(&Request::model(&query, method, 3))
+            .expect("ranks");
         let ids: Vec<&str> = ranking.hits.iter().map(|h| h.id.as_str()).collect();
         assert_eq!(ids, ["aa-copy", "m000007", "zz-copy"], "{method}");
         assert!(ranking.hits.iter().all(|h| h.distance == 0.0));
     }
     assert!(index
-        .search(&query, 0, Method::Ecc)
+        .search(&Request::model(&query, Method::Ecc, 0))
         .expect("ranks")
         .hits
         .is_empty());
-    let everything = index.search(&query, 1000, Method::Ecc).expect("ranks");
+    let everything = index
+        .search(&Request::model(&query, Method::Ecc, 1000))
+        .expect("ranks");
     assert_eq!(everything.hits.len(), index.len());
+    // `within` keeps the hits at most that far, in the same order.
+    let cutoff = everything.hits[10].distance;
+    let near = index
+        .search(&Request::model(&query, Method::Ecc, 1000).within(cutoff))
+        .expect("ranks");
+    let expected: Vec<_> = everything
+        .hits
+        .iter()
+        .filter(|h| h.distance <= cutoff)
+        .collect();
+    assert!(expected.len() >= 11 && expected.len() < everything.hits.len());
+    assert_eq!(near.hits.iter().collect::<Vec<_>>(), expected);
 }
 
 /// The LFD method ranks by the light field distance and leaves out signatures without a
@@ -91,7 +111,9 @@ fn lfd_ranks_by_light_field_distance_and_skips_signatures_without_one() {
     old.lfd = None;
     index.insert("old-bowl", &old).expect("shelved");
     let query = &signatures[0].1;
-    let ranking = index.search(query, 10, Method::Lfd).expect("ranks");
+    let ranking = index
+        .search(&Request::model(query, Method::Lfd, 10))
+        .expect("ranks");
     let expected = in_order(signatures.iter().map(|(id, s)| {
         let lfd = query.lfd.as_ref().unwrap();
         (lfd.distance(s.lfd.as_ref().unwrap()), *id)
@@ -103,9 +125,11 @@ fn lfd_ranks_by_light_field_distance_and_skips_signatures_without_one() {
     // The bound-pruned ranking is the full scan's for every k and query.
     for (_, query) in &signatures {
         for k in 1..=4 {
-            let fast = index.search(query, k, Method::Lfd).expect("ranks");
+            let fast = index
+                .search(&Request::model(query, Method::Lfd, k))
+                .expect("ranks");
             let full = index
-                .search_exhaustive(query, k, Method::Lfd)
+                .search(&Request::model(query, Method::Lfd, k).exhaustive())
                 .expect("ranks");
             assert_eq!(fast.hits, full.hits, "k = {k}");
             assert_eq!(fast.evaluated + fast.pruned, 4);
@@ -115,7 +139,7 @@ fn lfd_ranks_by_light_field_distance_and_skips_signatures_without_one() {
     let mut bare = signatures[0].1.clone();
     bare.lfd = None;
     assert!(index
-        .search(&bare, 3, Method::Lfd)
+        .search(&Request::model(&bare, Method::Lfd, 3))
         .expect("ranks")
         .hits
         .is_empty());
@@ -210,7 +234,7 @@ fn hybrid_is_the_weighted_sum_of_its_parts_and_its_bound_never_exceeds_it() {
                 (partial - without).abs() <= 1e-12 * without.max(1.0),
                 "{a}–{b}"
             );
-            assert!(Method::Hybrid.comparable(&old) && !Method::Hybrid.complete(&old));
+            assert!(Method::Hybrid.ranks(&old) && !Method::Hybrid.ranks_fully(&old));
         }
     }
 }
@@ -231,8 +255,12 @@ fn hybrid_weights_load_from_parameters() {
         index.insert(*id, s).expect("shelved");
     }
     for (_, query) in &signatures {
-        let hybrid = index.search(query, 4, Method::Hybrid).expect("ranks");
-        let d2 = index.search(query, 4, Method::D2).expect("ranks");
+        let hybrid = index
+            .search(&Request::model(query, Method::Hybrid, 4))
+            .expect("ranks");
+        let d2 = index
+            .search(&Request::model(query, Method::D2, 4))
+            .expect("ranks");
         let ids = |r: &salient_core::rank::Ranking| {
             r.hits.iter().map(|h| h.id.clone()).collect::<Vec<_>>()
         };
@@ -299,7 +327,7 @@ fn hybrid_pruning_never_changes_the_top_k() {
             index.insert(id.clone(), s).expect("shelved");
         }
         assert_eq!(
-            index.partial(Method::Hybrid, &Scope::default()),
+            index.coverage(Method::Hybrid, &Scope::default()).partial,
             1000usize.div_ceil(17)
         );
         // In insertion order, then arranged as the service does after a load (its blocks'
@@ -372,15 +400,19 @@ fn entries_survive_changes_across_chunks() {
                 keep: Some(&only),
             };
             let found = index
-                .search_where(held, 1, Method::Hybrid, &scope)
+                .search(&Request::model(held, Method::Hybrid, 1).scope(scope))
                 .expect("ranks");
             assert_eq!(found.hits[0].distance, 0.0, "{id}");
         }
     }
     let query = &collection[6].1;
     for method in Method::ALL {
-        let fast = index.search(query, 10, method).expect("ranks");
-        let full = index.search_exhaustive(query, 10, method).expect("ranks");
+        let fast = index
+            .search(&Request::model(query, method, 10))
+            .expect("ranks");
+        let full = index
+            .search(&Request::model(query, method, 10).exhaustive())
+            .expect("ranks");
         assert_eq!(fast.hits, full.hits, "{method}");
     }
     // `similar` of model 6 leaves it out, not its copy under another id.
@@ -391,7 +423,7 @@ fn entries_survive_changes_across_chunks() {
         keep: Some(&even),
     };
     let ranking = index
-        .search_where(query, 10, Method::Hybrid, &scope)
+        .search(&Request::model(query, Method::Hybrid, 10).scope(scope))
         .expect("ranks");
     assert_eq!(ranking.hits[0].id, *replaced);
     assert_eq!(ranking.hits[0].distance, 0.0);
@@ -417,7 +449,9 @@ fn shelved_light_fields_outlive_the_entries_removed_from_newer_copies() {
         index.insert(id.clone(), s).expect("shelved");
     }
     let agrees = |index: &Index, members: &[(String, Signature)], query: &Signature| {
-        let ranking = index.search(query, 5, Method::Lfd).expect("ranks");
+        let ranking = index
+            .search(&Request::model(query, Method::Lfd, 5))
+            .expect("ranks");
         let expected = in_order(
             members
                 .iter()

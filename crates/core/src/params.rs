@@ -22,8 +22,8 @@ use crate::{Error, Result};
 ///
 /// - 1: release 0.1.0.
 /// - 2: the weld merges every pair of vertices within the tolerance, across grid cells.
-/// - 3: `D_g` 0.4 (was the paper's 0.3), chosen on the tuning halves (issue #12).
-/// - 4: rough meshes are smoothed before extraction (`mesh.smoothing`, issue #12).
+/// - 3: `D_g` 0.4 (was the paper's 0.3), chosen on the tuning halves (`docs/results/README.md`).
+/// - 4: rough meshes are smoothed before extraction (`mesh.smoothing`, SPEC §1.7).
 pub const PARAMS_VERSION: u32 = 4;
 
 /// All parameters that influence a signature.
@@ -210,7 +210,7 @@ pub struct MeshParams {
     /// 7 000-vertex meshes on 2 cores (`docs/results/README.md`, "Resolution").
     pub max_vertices: usize,
     /// The length (normalised units) over which a rough mesh is smoothed after normalisation
-    /// (`mesh::smooth`), so that vertex-scale noise is not read as cone curvature (issue #12):
+    /// (`mesh::smooth`), so that vertex-scale noise is not read as cone curvature (SPEC §1.7):
     /// at 0.08 the dog and the hand of `docs/results/robustness` at 1 % noise keep their
     /// salient points. 0 never smooths (the paper's mesh).
     pub smoothing: f64,
@@ -262,7 +262,7 @@ pub enum GeodesicRule {
 pub struct EccParams {
     /// Local size `D_g` in normalised units (§3.2.1). 0.4, not the paper's 0.3: at 20 000
     /// vertices larger regions gained held-out mAP on both shared collections, alone and in
-    /// the hybrid (issue #12, `PARAMS_VERSION` 3); at today's 3 000 the study no longer
+    /// the hybrid (`PARAMS_VERSION` 3); at today's 3 000 the study no longer
     /// separates the two (`docs/results/README.md`, "Parameter study"). [`Params::paper`]
     /// keeps 0.3.
     pub local_size: f64,
@@ -589,7 +589,7 @@ pub struct PartialParams {
     /// How many models the part is registered into ([`crate::partial::Probe::residual`]),
     /// which then rank first by how well it lies on their surface: the models nearest it by
     /// their stored patches, and as many of the feature fit's best among models whose
-    /// patches are not made yet ([`crate::rank::Index::search_partial`]); 0 ranks by the
+    /// patches are not made yet ([`crate::rank::Query::Part`]); 0 ranks by the
     /// feature fit alone. Each costs a registration (and, when the model's surface is not
     /// cached, its preparation).
     pub verified: usize,

@@ -1,4 +1,4 @@
-//! Partial retrieval (issue #14, the paper's stated reason for local features): the query is
+//! Partial retrieval (`docs/results/partial/`, the paper's stated reason for local features): the query is
 //! a piece of a model — cut from it, an open surface with a boundary — and a stored model
 //! ranks by how well the piece's salient features fit among its own.
 //!
@@ -164,7 +164,7 @@ pub fn stored_patches(raw: &RawMesh, params: &MeshParams) -> Result<Packed> {
 
 /// Models by the distance of a part to their stored patches ([`Packed::nearest`]), nearest
 /// first, ties by id: the order a partial search takes its candidates in
-/// ([`crate::rank::Index::search_partial`]).
+/// ([`crate::rank::Query::Part`]).
 pub fn nearest_first<S: Ord>(mut models: Vec<(f64, S)>) -> Vec<(f64, S)> {
     models.sort_by(|a, b| a.0.total_cmp(&b.0).then_with(|| a.1.cmp(&b.1)));
     models

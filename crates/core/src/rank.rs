@@ -86,7 +86,7 @@ impl FromStr for Method {
 }
 
 /// Distance between two signatures under `method`; infinite for [`Method::Lfd`] when either
-/// signature predates the light field descriptor (see [`Method::comparable`]).
+/// signature predates the light field descriptor (see [`Method::ranks`]).
 pub fn distance(method: Method, p: &Signature, q: &Signature, params: &SimilarityParams) -> f64 {
     let (p, q) = (Prepared::of(p), Prepared::of(q));
     compared_distance(method, p.compared(), q.compared(), params)
@@ -132,7 +132,7 @@ pub fn explain(p: &Signature, q: &Signature, params: &SimilarityParams) -> Expla
     Explanation {
         distances: Method::ALL
             .into_iter()
-            .filter(|m| m.comparable(p) && m.comparable(q))
+            .filter(|m| m.ranks(p) && m.ranks(q))
             .map(|m| (m, distance(m)))
             .collect(),
         contributions: contributions(&params.hybrid, parts),
@@ -292,56 +292,49 @@ impl Method {
         Method::Geodesic,
     ];
 
-    /// Whether `signature` holds what this method compares.
-    pub fn comparable(self, signature: &Signature) -> bool {
-        self.compares(Holds::of(signature))
-    }
-
-    /// [`Method::comparable`] from which optional descriptors a model holds.
-    fn compares(self, holds: Holds) -> bool {
+    /// Whether this method can rank a model that holds `held`: one that lacks the method's
+    /// descriptor is left out of its rankings until it is re-extracted.
+    pub fn ranks(self, held: impl Into<Held>) -> bool {
+        let held = held.into();
         match self {
-            Method::Lfd => holds.lfd,
-            Method::Geodesic => holds.geodesic,
+            Method::Lfd => held.lfd,
+            Method::Geodesic => held.geodesic,
             Method::Hybrid | Method::Ecc | Method::D2 => true,
         }
     }
 
-    /// [`Method::complete`], likewise.
-    fn completes(self, holds: Holds) -> bool {
+    /// Whether this method ranks a model that holds `held` on all of its distance; one it
+    /// [`Method::ranks`] but not fully is ranked on part of it (see [`fuse`]).
+    pub fn ranks_fully(self, held: impl Into<Held>) -> bool {
+        let held = held.into();
         match self {
-            Method::Hybrid => PARTS.iter().all(|m| m.compares(holds)),
-            _ => self.compares(holds),
+            Method::Hybrid => PARTS.iter().all(|m| m.ranks(held)),
+            _ => self.ranks(held),
         }
     }
 
     /// Whether this method compares salient features, so that a query needs its ECC
     /// ([`crate::pipeline::Extent`]): the ECC method, and the hybrid while its ECC part
     /// weighs anything.
-    pub fn compares_features(self, params: &SimilarityParams) -> bool {
+    pub fn needs_features(self, params: &SimilarityParams) -> bool {
         match self {
             Method::Ecc => true,
             Method::Hybrid => params.hybrid.ecc.weight > 0.0,
             Method::D2 | Method::Lfd | Method::Geodesic => false,
         }
     }
-
-    /// Whether `signature` holds every part this method weighs; a comparable signature
-    /// that is not complete is ranked on part of the distance (see [`fuse`]).
-    pub fn complete(self, signature: &Signature) -> bool {
-        self.completes(Holds::of(signature))
-    }
 }
 
-/// Which of the descriptors a signature may lack it holds: what decides whether a method can
-/// rank it, read from the signature or from the index's columns.
-#[derive(Debug, Clone, Copy)]
-struct Holds {
-    lfd: bool,
-    geodesic: bool,
+/// Which of the descriptors a signature may lack a model holds: what decides whether a
+/// method can rank it ([`Method::ranks`]), read from its signature or from the index's columns.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Held {
+    pub lfd: bool,
+    pub geodesic: bool,
 }
 
-impl Holds {
-    fn of(signature: &Signature) -> Self {
+impl From<&Signature> for Held {
+    fn from(signature: &Signature) -> Self {
         Self {
             lfd: signature.lfd.is_some(),
             geodesic: signature.geodesic.is_some(),
@@ -363,27 +356,149 @@ pub struct Scope<'a> {
 pub struct Hit {
     pub id: String,
     pub distance: f64,
+    /// For a part ([`Query::Part`]): the size it fitted this model at, its radius over the
+    /// model's ([`crate::params::PartialParams::scales`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub part_scale: Option<f64>,
 }
 
 /// The top `k` and how much work finding them took.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 pub struct Ranking {
     pub hits: Vec<Hit>,
     /// Entries whose exact distance was computed.
     pub evaluated: usize,
     /// Entries rejected by a lower bound without solving their EMD.
     pub pruned: usize,
+    /// For a part ([`Query::Part`]): how many of the first hits are the candidates to verify
+    /// by registering the part into them; 0 otherwise.
+    #[serde(default)]
+    pub candidates: usize,
 }
 
-/// A [`Ranking`] of models by how well they contain a part, and the size the part fitted
-/// each hit at (its radius over the model's, [`crate::params::PartialParams::scales`]). Its
-/// first `candidates` hits are the ones to verify ([`Index::search_partial`]); the rest follow
-/// in the fit's order.
-#[derive(Debug, Clone, PartialEq)]
-pub struct PartRanking {
-    pub ranking: Ranking,
-    pub scales: Vec<f64>,
-    pub candidates: usize,
+/// What a caller asks of an index (as qdrant's `VectorIndex::search(query, filter, top,
+/// params)`): the `k` entries in `scope` nearest a query, within `within`. Explanations are
+/// not asked here: they need the stored signatures, which an index does not hold
+/// ([`explain`] makes them from the hits).
+#[derive(Clone, Copy)]
+pub struct Request<'a> {
+    pub query: Query<'a>,
+    pub k: usize,
+    pub scope: Scope<'a>,
+    /// Only hits at most this far (infinite: the `k` nearest whatever their distance).
+    pub within: f64,
+    /// Every entry's exact distance, no pruning: the reference a pruned ranking must match.
+    pub exhaustive: bool,
+}
+
+/// What is searched with.
+#[derive(Clone, Copy)]
+pub enum Query<'a> {
+    /// A whole model, compared by `method`; `params` other than the index's own (a query-time
+    /// `W`) rank without the bounds, whose summaries were made for the index's.
+    Model {
+        signature: &'a Signature,
+        method: Method,
+        params: Option<&'a SimilarityParams>,
+    },
+    /// A piece of a model ([`crate::partial`]): the models that contain it. `nearest` are the
+    /// models nearest the part by their stored patches, nearest first
+    /// ([`crate::partial::nearest_first`]), of which `verified` become candidates to verify.
+    Part {
+        part: &'a Part,
+        nearest: &'a [(f64, String)],
+        verified: usize,
+    },
+}
+
+impl<'a> Request<'a> {
+    /// The `k` models nearest `signature` by `method`, over every entry.
+    pub fn model(signature: &'a Signature, method: Method, k: usize) -> Self {
+        Self::of(
+            Query::Model {
+                signature,
+                method,
+                params: None,
+            },
+            k,
+        )
+    }
+
+    /// The `k` models that best contain `part`, the first of those nearest it by their stored
+    /// patches verified ([`Query::Part`]).
+    pub fn part(part: &'a Part, nearest: &'a [(f64, String)], verified: usize, k: usize) -> Self {
+        Self::of(
+            Query::Part {
+                part,
+                nearest,
+                verified,
+            },
+            k,
+        )
+    }
+
+    fn of(query: Query<'a>, k: usize) -> Self {
+        Self {
+            query,
+            k,
+            scope: Scope::default(),
+            within: f64::INFINITY,
+            exhaustive: false,
+        }
+    }
+
+    /// Over the entries in `scope` only.
+    pub fn scope(self, scope: Scope<'a>) -> Self {
+        Self { scope, ..self }
+    }
+
+    /// Only hits at most `distance` away.
+    pub fn within(self, distance: f64) -> Self {
+        Self {
+            within: distance,
+            ..self
+        }
+    }
+
+    /// Without pruning ([`Request::exhaustive`]).
+    pub fn exhaustive(self) -> Self {
+        Self {
+            exhaustive: true,
+            ..self
+        }
+    }
+
+    /// Compared under `params` rather than the index's own.
+    pub fn params(self, params: &'a SimilarityParams) -> Self {
+        let query = match self.query {
+            Query::Model {
+                signature, method, ..
+            } => Query::Model {
+                signature,
+                method,
+                params: Some(params),
+            },
+            part => part,
+        };
+        Self { query, ..self }
+    }
+}
+
+/// The entries in a scope that a method cannot rank (`left_out`, until re-extracted) or ranks
+/// on part of its distance only (`partial`, see [`fuse`]): what responses report.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct Coverage {
+    pub left_out: usize,
+    pub partial: usize,
+}
+
+/// An index of models that answers [`Request`]s: [`Index`] in memory, or one kept elsewhere.
+pub trait Search {
+    /// The hits of `request`, nearest first, ties by id.
+    fn search(&self, request: &Request) -> io::Result<Ranking>;
+
+    /// How many entries in `scope` `method` leaves out or ranks on part of its distance.
+    fn coverage(&self, method: Method, scope: &Scope) -> Coverage;
 }
 
 /// What ranking compares of each model of a collection, with what it precomputes for its
@@ -577,60 +692,15 @@ impl Index {
         Ok(pairs)
     }
 
-    /// The `k` entries nearest to `query`, nearest first, ties by id.
-    pub fn search(&self, query: &Signature, k: usize, method: Method) -> io::Result<Ranking> {
-        self.search_where(query, k, method, &Scope::default())
-    }
-
     /// Whether an entry is in `scope`.
     fn admits<'s>(&'s self, scope: &'s Scope<'s>) -> impl Fn(Entry) -> bool + Sync + 's {
         let without = scope.without.and_then(|id| self.position.get(id).copied());
         move |e: Entry| Some(e.number()) != without && scope.keep.is_none_or(|keep| keep(e.id()))
     }
 
-    /// [`Index::search`] over the entries in `scope`. Entries left out count neither as
-    /// evaluated nor as pruned.
-    pub fn search_where(
-        &self,
-        query: &Signature,
-        k: usize,
-        method: Method,
-        scope: &Scope,
-    ) -> io::Result<Ranking> {
-        match method {
-            Method::Hybrid => self.search_hybrid(query, k, scope),
-            Method::Ecc => self.search_ecc(query, k, scope),
-            Method::Lfd => self.search_lfd(query, k, scope),
-            // A histogram distance costs less than any bound would.
-            Method::D2 | Method::Geodesic => self.exhaustive(query, k, method, &self.params, scope),
-        }
-    }
-
-    /// Entries in `scope` that `method` cannot compare (see [`Method::comparable`]): they
-    /// are left out of its rankings until re-extracted, and responses say how many.
-    pub fn incomparable(&self, method: Method, scope: &Scope) -> usize {
-        let admits = self.admits(scope);
-        self.entries
-            .iter()
-            .filter(|&e| !e.comparable(method) && admits(e))
-            .count()
-    }
-
-    /// Entries in `scope` that `method` ranks on part of its distance only (see
-    /// [`Method::complete`]); they are re-extracted in the background, and responses say how
-    /// many.
-    pub fn partial(&self, method: Method, scope: &Scope) -> usize {
-        let admits = self.admits(scope);
-        self.entries
-            .iter()
-            .filter(|&e| e.comparable(method) && !e.complete(method) && admits(e))
-            .count()
-    }
-
-    /// [`Index::search_where`] with other similarity parameters than the index was built for
-    /// (a query-time `W`): the bounds' summaries do not hold for them, so this ranks
-    /// exhaustively unless the parameters are the index's own.
-    pub fn search_with(
+    /// The `k` entries in `scope` nearest `query` by `method` under `params`. Entries left out
+    /// count neither as evaluated nor as pruned.
+    fn search_model(
         &self,
         query: &Signature,
         k: usize,
@@ -638,21 +708,18 @@ impl Index {
         params: &SimilarityParams,
         scope: &Scope,
     ) -> io::Result<Ranking> {
-        if matches!(method, Method::D2 | Method::Lfd | Method::Geodesic) || *params == self.params {
-            return self.search_where(query, k, method, scope);
+        // The bounds' summaries hold for the index's parameters only; the histogram methods
+        // and the LFD compare nothing that depends on them.
+        let own =
+            matches!(method, Method::D2 | Method::Lfd | Method::Geodesic) || *params == self.params;
+        match method {
+            _ if !own => self.exhaustive(query, k, method, params, scope),
+            Method::Hybrid => self.search_hybrid(query, k, scope),
+            Method::Ecc => self.search_ecc(query, k, scope),
+            Method::Lfd => self.search_lfd(query, k, scope),
+            // A histogram distance costs less than any bound would.
+            Method::D2 | Method::Geodesic => self.exhaustive(query, k, method, &self.params, scope),
         }
-        self.exhaustive(query, k, method, params, scope)
-    }
-
-    /// Every entry's exact distance, no pruning: the reference the pruned search must match.
-    /// Entries the method cannot compare (see [`Method::comparable`]) are left out.
-    pub fn search_exhaustive(
-        &self,
-        query: &Signature,
-        k: usize,
-        method: Method,
-    ) -> io::Result<Ranking> {
-        self.exhaustive(query, k, method, &self.params, &Scope::default())
     }
 
     fn exhaustive(
@@ -683,7 +750,7 @@ impl Index {
         let mut scored: Vec<(f64, usize)> = self
             .entries
             .par_entries()
-            .filter(|&e| admits(e) && e.comparable(method))
+            .filter(|&e| admits(e) && e.ranks(method))
             .map(|e| Ok((distance(e)?, e.number())))
             .collect::<io::Result<_>>()?;
         let evaluated = scored.len();
@@ -694,10 +761,12 @@ impl Index {
                 .map(|&(distance, i)| Hit {
                     id: self.entries.get(i).id().to_string(),
                     distance,
+                    part_scale: None,
                 })
                 .collect(),
             evaluated,
             pruned: 0,
+            candidates: 0,
         })
     }
 
@@ -847,13 +916,14 @@ impl Index {
     /// hit has the size the part fitted it at; entries without salient features are left out.
     /// The fit is pruned by [`Part::bound`] like the other methods: the same top `k` as a full
     /// scan.
-    pub fn search_partial(
+    fn search_part(
         &self,
         part: &Part,
         k: usize,
         scope: &Scope,
-        (nearest, verified): (&[(f64, impl AsRef<str>)], usize),
-    ) -> io::Result<PartRanking> {
+        nearest: &[(f64, String)],
+        verified: usize,
+    ) -> io::Result<Ranking> {
         let params = &self.params;
         let admits = self.admits(scope);
         let fitted = |e: Entry| admits(e) && e.summary().features() > 0;
@@ -871,10 +941,10 @@ impl Index {
         };
         // The patches' nearest that the part fits, then the fit's best of the models without
         // patches: each once, verified; then the rest of the fit's ranking.
-        let patched: HashSet<&str> = nearest.iter().map(|(_, id)| id.as_ref()).collect();
+        let patched: HashSet<&str> = nearest.iter().map(|(_, id)| id.as_str()).collect();
         let mut chosen: Vec<(&str, Fit)> = nearest
             .iter()
-            .filter_map(|(_, id)| Some((id.as_ref(), fit_of(id.as_ref())?)))
+            .filter_map(|(_, id)| Some((id.as_str(), fit_of(id)?)))
             .take(verified)
             .collect();
         let unpatched = fit.hits.iter().take(verified).map(|h| h.id.as_str());
@@ -895,40 +965,34 @@ impl Index {
             .filter_map(|h| Some((h.id.as_str(), fit_of(&h.id)?)))
             .collect();
         chosen.extend(rest);
-        Ok(PartRanking {
-            scales: chosen.iter().map(|(_, f)| f.scale).collect(),
-            ranking: Ranking {
-                hits: chosen
-                    .iter()
-                    .map(|&(id, f)| Hit {
-                        id: id.to_string(),
-                        distance: f.distance,
-                    })
-                    .collect(),
-                evaluated: fit.evaluated + fitted_here,
-                pruned: fit.pruned,
-            },
+        Ok(Ranking {
+            hits: chosen
+                .iter()
+                .map(|&(id, f)| Hit {
+                    id: id.to_string(),
+                    distance: f.distance,
+                    part_scale: Some(f.scale),
+                })
+                .collect(),
+            evaluated: fit.evaluated + fitted_here,
+            pruned: fit.pruned,
             candidates,
         })
     }
 
     /// Light field ranking with [`crate::descriptor::lfd::LfdSummary::lower_bound`]; entries without a descriptor are
-    /// left out (see [`Method::comparable`]), and a query without one ranks nothing.
+    /// left out (see [`Method::ranks`]), and a query without one ranks nothing.
     fn search_lfd(&self, query: &Signature, k: usize, scope: &Scope) -> io::Result<Ranking> {
         let Some(query) = &query.lfd else {
-            // Nothing to compare with: no entry is ranked (callers check `comparable`).
-            return Ok(Ranking {
-                hits: Vec::new(),
-                evaluated: 0,
-                pruned: 0,
-            });
+            // Nothing to compare with: no entry is ranked (callers check [`Method::ranks`]).
+            return Ok(Ranking::default());
         };
         let (sketch, prepared) = (query.sketch(), LfdQuery::new(query));
         const KEPT: &str = "kept entries have one";
         let admits = self.admits(scope);
         self.cascade(
             k,
-            |e| admits(e) && e.comparable(Method::Lfd),
+            |e| admits(e) && e.ranks(Method::Lfd),
             (
                 |e, _| sketch.lower_bound(e.sketch().expect(KEPT)),
                 NO_BLOCKS,
@@ -986,6 +1050,7 @@ impl Index {
                     Some(Hit {
                         id: self.entries.get(i).id().to_string(),
                         distance: distance?,
+                        part_scale: None,
                     })
                 })
                 .collect();
@@ -1066,6 +1131,7 @@ impl Index {
             hits,
             evaluated,
             pruned: admitted - evaluated,
+            candidates: 0,
         })
     }
 
@@ -1114,6 +1180,7 @@ impl Index {
                     Ok(exact(entry, kth)?.map(|distance| Hit {
                         id: entry.id().to_string(),
                         distance,
+                        part_scale: None,
                     }))
                 })
                 .collect::<io::Result<_>>()?;
@@ -1142,6 +1209,53 @@ impl Index {
         }
         scored[..k].sort_unstable_by(order);
         &scored[..k]
+    }
+}
+
+impl Search for Index {
+    fn search(&self, request: &Request) -> io::Result<Ranking> {
+        let Request {
+            query,
+            k,
+            ref scope,
+            within,
+            exhaustive,
+        } = *request;
+        let mut ranking = match query {
+            Query::Model {
+                signature,
+                method,
+                params,
+            } => {
+                let params = params.unwrap_or(&self.params);
+                if exhaustive {
+                    self.exhaustive(signature, k, method, params, scope)?
+                } else {
+                    self.search_model(signature, k, method, params, scope)?
+                }
+            }
+            Query::Part {
+                part,
+                nearest,
+                verified,
+            } => self.search_part(part, k, scope, nearest, verified)?,
+        };
+        ranking.hits.retain(|h| h.distance <= within);
+        ranking.candidates = ranking.candidates.min(ranking.hits.len());
+        Ok(ranking)
+    }
+
+    fn coverage(&self, method: Method, scope: &Scope) -> Coverage {
+        let admits = self.admits(scope);
+        let (mut left_out, mut partial) = (0, 0);
+        for e in self.entries.iter().filter(|&e| admits(e)) {
+            if !e.ranks(method) {
+                left_out += 1;
+            } else if !e.ranks_fully(method) {
+                partial += 1;
+            }
+        }
+        Coverage { left_out, partial }
     }
 }
 

@@ -191,7 +191,7 @@ impl CostMatrix {
     }
 }
 
-/// How far part `P` is from being a part of model `Q` (issue #14): each of `P`'s `m` features
+/// How far part `P` is from being a part of model `Q` (`crate::partial`): each of `P`'s `m` features
 /// carries mass `1/m`, all of it moves, and each of `Q`'s `n` features takes at most
 /// `1/min(m, n)` — as much as one of `P`'s while `Q` has features enough, so `Q`'s surplus
 /// (the rest of the model) stays unmatched at no cost, and no count penalty. With Eq. 12's

@@ -1,6 +1,6 @@
 //! `salient eval duplicates`: how well the library-wide near-duplicate search
 //! ([`salient_core::duplicate`]) finds disguised copies, and how rarely it takes another model of
-//! the same class for one (issue #14). Every model of a collection (or of one of its halves,
+//! the same class for one (`docs/results/duplicates/`). Every model of a collection (or of one of its halves,
 //! [`super::study::halves`]) gets two copies, mixed into it:
 //! - **re-exported**: another file format (float32 for STL and GLB), scaled by 25.4 or 0.1 and
 //!   moved — expected `identical_geometry`;

@@ -1,7 +1,7 @@
-//! `salient eval partial`: how well a piece of a model finds its source (issue #14). Every
+//! `salient eval partial`: how well a piece of a model finds its source (`docs/results/partial/`). Every
 //! model of a half gets three parts — each the surface inside a ball of 30–50 % of its radius
 //! around a random surface point, its largest connected piece ([`cut`]) — queried against the
-//! whole collection: by salient features ([`Index::search_partial`]), the same with its best
+//! whole collection: by salient features ([`salient_core::rank::Query::Part`]), the same with its best
 //! `similarity.partial.verified` registered into each model's surface ([`Probe::residual`]:
 //! what `mode=partial` serves), as a whole model (the default method, as `/v1/search` without
 //! `mode`), and by patch descriptors ([`salient_core::descriptor::patch`]) alone and verified (not
@@ -31,7 +31,7 @@ use salient_core::mesh::{load_path, RawMesh};
 use salient_core::params::{Limits, Params, PartialParams};
 use salient_core::partial::{by_residual, nearest_first, stored_patches, Part, Probe, Target};
 use salient_core::pipeline::compute;
-use salient_core::rank::{Hit, Index, Method, PartRanking, Scope};
+use salient_core::rank::{Hit, Index, Method, Ranking, Request, Search};
 use salient_core::salient::area as triangle_area;
 use salient_core::Result;
 
@@ -227,7 +227,7 @@ pub fn run(
         let verified_count = params.similarity.partial.verified;
         // The stored patches of every model, nearest the part first (a library whose patches
         // are all made); none for a part without area.
-        let by_patch: Vec<(f64, &str)> = nearest_first(
+        let by_patch: Vec<(f64, String)> = nearest_first(
             probe
                 .as_ref()
                 .map(|p| {
@@ -236,28 +236,25 @@ pub fn run(
                         .models
                         .iter()
                         .zip(&targets)
-                        .map(|(m, (_, packed))| (packed.nearest(&part), m.id.as_str()))
+                        .map(|(m, (_, packed))| (packed.nearest(&part), m.id.clone()))
                         .collect()
                 })
                 .unwrap_or_default(),
         );
         // What is served, and the same with the fit's own candidates (no model patched).
         let served = index
-            .search_partial(part, DEPTH, &Scope::default(), (&by_patch, verified_count))
+            .search(&Request::part(part, &by_patch, verified_count, DEPTH))
             .map_err(io)?;
         let fit = index
-            .search_partial(
-                part,
-                DEPTH,
-                &Scope::default(),
-                (&[] as &[(f64, &str)], verified_count),
-            )
+            .search(&Request::part(part, &[], verified_count, DEPTH))
             .map_err(io)?;
-        let whole = index.search(whole, DEPTH, Method::default()).map_err(io)?;
+        let whole = index
+            .search(&Request::model(whole, Method::default(), DEPTH))
+            .map_err(io)?;
         // Each candidate of either ranking registered once.
         let candidates: BTreeSet<usize> = [&served, &fit]
             .into_iter()
-            .flat_map(|r| r.ranking.hits.iter().take(r.candidates))
+            .flat_map(|r| r.hits.iter().take(r.candidates))
             .map(|h| position[h.id.as_str()])
             .collect();
         let residuals: BTreeMap<usize, f64> = candidates
@@ -270,20 +267,21 @@ pub fn run(
             })
             .collect();
         let residual = |h: &Hit| residuals[&position[h.id.as_str()]];
-        let verify = |ranked: &PartRanking| {
-            let mut verified = ranked.ranking.hits.clone();
+        let verify = |ranked: &Ranking| {
+            let mut verified = ranked.hits.clone();
             by_residual(&mut verified[..ranked.candidates], |h| Some(residual(h)));
             verified.truncate(DEPTH);
             verified
         };
         // The fit alone: its own ranking, the candidates taken from the fit.
-        let fit_alone = &fit.ranking.hits[..DEPTH.min(fit.ranking.hits.len())];
+        let fit_alone = &fit.hits[..DEPTH.min(fit.hits.len())];
         let patches_alone: Vec<Hit> = by_patch
             .iter()
             .take(DEPTH)
-            .map(|&(distance, id)| Hit {
-                id: id.to_string(),
-                distance,
+            .map(|(distance, id)| Hit {
+                id: id.clone(),
+                distance: *distance,
+                part_scale: None,
             })
             .collect();
         let found = Found::of(fit_alone, &model.id);
@@ -295,7 +293,7 @@ pub fn run(
             size: c.size,
             vertices: c.raw.positions.len(),
             features: part.sizes().collect(),
-            fitted_scale: found.rank.map(|r| fit.scales[r - 1]),
+            fitted_scale: found.rank.and_then(|r| fit.hits[r - 1].part_scale),
             partial: found,
             whole: Found::of(&whole.hits, &model.id),
             patches: Found::of(&patches_alone, &model.id),

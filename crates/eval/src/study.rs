@@ -1,5 +1,5 @@
 //! The parameter study behind the defaults (SPEC §5: "tune `W` on the labelled set and record
-//! the tuned value with its evidence"; issue #4): `W`, the penalty, `K`, `flat_max`, `D_g` and
+//! the tuned value with its evidence"; `docs/results/study-*/`): `W`, the penalty, `K`, `flat_max`, `D_g` and
 //! SPEC's three resolved rules varied one at a time around the defaults, scored by
 //! leave-one-out retrieval with the ECC method.
 //!

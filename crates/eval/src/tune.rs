@@ -1,4 +1,4 @@
-//! Choosing the `hybrid` method's weights, scales and penalty power (SPEC §9, issue #12) on
+//! Choosing the `hybrid` method's weights, scales and penalty power (SPEC §9; `docs/results/tune/`) on
 //! the tuning halves of one or more labelled collections together, and judging the choice on
 //! the held-out halves.
 //!

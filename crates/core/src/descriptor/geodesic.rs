@@ -1,4 +1,4 @@
-//! An intrinsic, global descriptor (issue #12): the distributions of geodesic distances on
+//! An intrinsic, global descriptor (SPEC §9, the hybrid's intrinsic part): the distributions of geodesic distances on
 //! the surface, which bending an articulated model leaves nearly unchanged, where D2 and the
 //! light field see a new shape.
 //!

@@ -1,4 +1,4 @@
-//! Patch descriptors for partial retrieval (issue #14): a model described piece by piece, so
+//! Patch descriptors for partial retrieval (`docs/results/partial/`): a model described piece by piece, so
 //! that a part cut from it finds the piece it was. Around vertices spread over the surface
 //! (farthest-point sampling), the surface inside a ball of each of a [`Layout`]'s radii (its
 //! largest connected piece, as a part is cut) gets a small, rotation- and scale-invariant

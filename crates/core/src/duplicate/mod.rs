@@ -1,4 +1,4 @@
-//! Near-duplicates (issue #14): models that are one asset whatever file, format, position,
+//! Near-duplicates (`docs/results/duplicates/`): models that are one asset whatever file, format, position,
 //! size, orientation or triangulation they came in — what a file hash misses.
 //!
 //! Finding them is filter and verify. Candidates are models close by the global descriptors

@@ -1,4 +1,4 @@
-//! Denoising by Taubin's λ|μ smoothing (issue #12, "Noise"): vertex-scale roughness of a
+//! Denoising by Taubin's λ|μ smoothing (SPEC §1.7; `docs/results/noise-shrec07-watertight/`): vertex-scale roughness of a
 //! scanned or noisy mesh is read by the first waves (at `D_g / N`) as cone curvature and makes
 //! spurious salient points (24 on CAPOD's dog at 1 % noise).
 //!

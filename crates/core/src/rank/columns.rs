@@ -20,7 +20,7 @@ use crate::signature::{Signature, Staleness};
 use crate::similarity::{Centroid, Features, Summary};
 
 use super::shelf::Slot;
-use super::{Compared, Holds, Method};
+use super::{Compared, Held, Method};
 
 /// Entries per chunk: a copy on write moves about a megabyte.
 const CHUNK: usize = 1024;
@@ -396,7 +396,7 @@ impl<'a> Entry<'a> {
 
     /// [`Signature::staleness`] of the entry's signature.
     pub fn staleness(self, current: &Params) -> Option<Staleness> {
-        let holds = self.holds();
+        let holds = self.held();
         Staleness::of(
             &self.chunk.extractions[self.slot],
             holds.lfd && holds.geodesic,
@@ -438,21 +438,21 @@ impl<'a> Entry<'a> {
 
     /// Which optional descriptors it holds, from the columns: a pass over every entry should
     /// not read the signature.
-    fn holds(self) -> Holds {
-        Holds {
+    fn held(self) -> Held {
+        Held {
             lfd: self.sketch().is_some(),
             geodesic: self.geodesic().is_some(),
         }
     }
 
-    /// [`Method::comparable`] from the columns.
-    pub fn comparable(self, method: Method) -> bool {
-        method.compares(self.holds())
+    /// [`Method::ranks`] from the columns.
+    pub fn ranks(self, method: Method) -> bool {
+        method.ranks(self.held())
     }
 
-    /// [`Method::complete`] from the columns.
-    pub fn complete(self, method: Method) -> bool {
-        method.completes(self.holds())
+    /// [`Method::ranks_fully`] from the columns.
+    pub fn ranks_fully(self, method: Method) -> bool {
+        method.ranks_fully(self.held())
     }
 }
 

@@ -26,7 +26,7 @@ use salient_core::duplicate::{groups, verify, Evidence, Link, Shape, Verdict};
 use salient_core::mesh::load_bytes;
 use salient_core::partial::Target;
 use salient_core::pipeline::Extent;
-use salient_core::rank::{Method, Scope};
+use salient_core::rank::{Method, Request, Scope, Search};
 use salient_core::signature::Signature;
 
 /// Meshes kept ready for verification (a shape of 10 000 vertices takes ~1 MB) …
@@ -235,17 +235,14 @@ pub(super) async fn duplicates_of(
                 without,
                 keep: None,
             };
-            let ranking = catalog.index.search_with(
-                &query,
-                p.candidates,
-                Method::Lfd,
-                catalog.index.params(),
-                &scope,
+            let ranking = catalog.index.search(
+                &Request::model(&query, Method::Lfd, p.candidates)
+                    .scope(scope)
+                    .within(p.lfd),
             )?;
             let candidates: Vec<(String, String)> = ranking
                 .hits
                 .into_iter()
-                .filter(|h| h.distance <= p.lfd)
                 .filter_map(|h| {
                     let record = catalog.records.get(h.id.as_str())?;
                     (record.content_hash != hash).then(|| (h.id, record.content_hash.clone()))

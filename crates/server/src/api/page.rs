@@ -1,4 +1,4 @@
-//! The page at `/` (issue #11 §3): a search and browse interface written against the same
+//! The page at `/` (SPEC §8): a search and browse interface written against the same
 //! public API a client uses. Its files are compiled into the binary, so it works offline and
 //! needs no build step; the hand-written WebGL view keeps it free of JavaScript libraries.
 

@@ -1,11 +1,11 @@
-//! Every model's stored patch descriptors ([`salient_core::descriptor::patch::Packed`], issue #14),
+//! Every model's stored patch descriptors ([`salient_core::descriptor::patch::Packed`]; `docs/results/partial/`),
 //! which pick the models a partial search verifies, made in the background: off the upload's
 //! path, once the extraction pool has no request to serve, and only on cores nothing else
 //! needs ([`super::pool::Pool::run_idle`]), so an ingest runs at the rate it would without
 //! them and they follow it. Made for each model stored since, and at
 //! start for every model without them (stored by an earlier release, or with another
 //! layout). Meanwhile a model without patches is left to the fit
-//! ([`salient_core::rank::Index::search_partial`]).
+//! ([`salient_core::rank::Query::Part`]).
 
 use std::collections::{BTreeSet, HashSet};
 use std::sync::{Arc, Mutex};

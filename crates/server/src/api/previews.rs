@@ -1,4 +1,4 @@
-//! What a person sees of a model (issue #11 §2): its thumbnail, the mesh of the page's 3D
+//! What a person sees of a model (SPEC §8): its thumbnail, the mesh of the page's 3D
 //! view, the same for an uploaded query, and a picture of two models with their matched
 //! regions in the same colours.
 //!

@@ -20,7 +20,7 @@ use salient_core::mesh::load_bytes;
 use salient_core::params::SimilarityParams;
 use salient_core::partial::{by_residual, nearest_first, Part, Probe, Target};
 use salient_core::pipeline::Extent;
-use salient_core::rank::{explain, Hit, Method, PartRanking, Ranking, Scope, PARTS};
+use salient_core::rank::{explain, Coverage, Hit, Method, Request, Scope, Search, PARTS};
 use salient_core::signature::Signature;
 
 /// Query of the search endpoints.
@@ -247,7 +247,7 @@ fn search_hits(catalog: &Snapshot, hits: Vec<Hit>) -> Vec<SearchHit> {
             let record = catalog.records.get(hit.id.as_str());
             SearchHit {
                 explanation: None,
-                part_scale: None,
+                part_scale: hit.part_scale,
                 residual: None,
                 rank: i + 1,
                 name: record.and_then(|r| r.name.clone()),
@@ -261,7 +261,7 @@ fn search_hits(catalog: &Snapshot, hits: Vec<Hit>) -> Vec<SearchHit> {
 }
 
 /// Search with a part (`mode=partial`): the part described at each size on the extraction
-/// pool, then the models that best contain it ([`salient_core::rank::Index::search_partial`]).
+/// pool, then the models that best contain it ([`salient_core::rank::Query::Part`]).
 async fn search_part(
     app: &AppState,
     q: SearchQuery,
@@ -308,17 +308,13 @@ async fn search_part(
                 without: None,
                 keep: tag.is_some().then_some(&tagged as _),
             };
-            let PartRanking {
-                ranking,
-                scales,
-                candidates,
-            } = catalog
+            let ranking = catalog
                 .index
-                .search_partial(&ranked, k, &scope, (&nearest, verified))?;
+                .search(&Request::part(&ranked, &nearest, verified, k).scope(scope))?;
             let hashes: Vec<Option<String>> = ranking
                 .hits
                 .iter()
-                .take(candidates)
+                .take(ranking.candidates)
                 .map(|h| {
                     catalog
                         .records
@@ -326,10 +322,7 @@ async fn search_part(
                         .map(|r| r.content_hash.clone())
                 })
                 .collect();
-            let mut results = search_hits(catalog, ranking.hits);
-            for (hit, scale) in results.iter_mut().zip(scales) {
-                hit.part_scale = Some(scale);
-            }
+            let results = search_hits(catalog, ranking.hits);
             Ok((results, hashes, ranking.evaluated, ranking.pruned))
         })
         .await?
@@ -390,7 +383,7 @@ async fn search_part(
 
 /// Every model with stored patches ([`Derived::Patches`] of today's layout), nearest `part`
 /// first (ties by id). A model without (added since the patches were last made, or stored by
-/// an earlier release) is left to the fit ([`salient_core::rank::Index::search_partial`]).
+/// an earlier release) is left to the fit ([`salient_core::rank::Query::Part`]).
 fn nearest_patches(store: &dyn Store, part: &PackedPiece) -> StoreResult<Vec<(f64, String)>> {
     let mut nearest = Vec::new();
     for entry in store.all_derived(Derived::Patches) {
@@ -502,17 +495,20 @@ async fn rank(
                 without: exclude.as_ref().map(ModelId::as_str),
                 keep: tag.is_some().then_some(&tagged as _),
             };
-            let Ranking {
-                hits,
-                evaluated,
-                pruned,
-            } = catalog
-                .index
-                .search_with(&query, k, method, &params, &scope)?;
-            let left_out = catalog.index.incomparable(method, &scope);
-            let partial = catalog.index.partial(method, &scope);
-            let results = search_hits(catalog, hits);
-            Ok((results, evaluated, pruned, left_out, partial))
+            let ranking = catalog.index.search(
+                &Request::model(&query, method, k)
+                    .params(&params)
+                    .scope(scope),
+            )?;
+            let Coverage { left_out, partial } = catalog.index.coverage(method, &scope);
+            let results = search_hits(catalog, ranking.hits);
+            Ok((
+                results,
+                ranking.evaluated,
+                ranking.pruned,
+                left_out,
+                partial,
+            ))
         })
         .await?
         .map_err(AppError::index)?;
@@ -591,7 +587,7 @@ pub async fn search(
     let q = WholeQuery::of(&app, q)?;
     // A method that compares no salient features (and no explanation, which shows every
     // method's distance) needs no ECC of the upload: most of an extraction's cost.
-    let extent = if q.explain || q.method.compares_features(&app.config.params.similarity) {
+    let extent = if q.explain || q.method.needs_features(&app.config.params.similarity) {
         Extent::Full
     } else {
         Extent::Global
@@ -635,7 +631,7 @@ pub async fn similar(
         .map(Arc::new)
         .ok_or_else(|| no_model(&id))?;
     let method = q.method;
-    if !method.comparable(&signature) {
+    if !method.ranks(&*signature) {
         return Err(AppError::Conflict(format!(
             "model {:?} was stored without the {method} descriptor; it is re-extracted in the background (see GET /v1/admin/reindex; POST it to start)",
             id.as_str()
