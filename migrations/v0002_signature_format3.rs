@@ -2,7 +2,7 @@
 //!
 //! - `signatures`: every value of format 1 or 2 (release 0.1.0: positional `postcard` with
 //!   the parameters and statistics embedded) is decoded and written again in format 3, whose
-//!   parameters and statistics tolerate added fields (`src/signature.rs`). Values already in
+//!   parameters and statistics tolerate added fields (`crates/core/src/signature.rs`). Values already in
 //!   format 3 or later are left alone, so an interrupted run simply starts again. (It writes
 //!   today's format, which reads back the same.)
 //! - `state`: small values the service keeps between runs (`reindex`: the progress of an

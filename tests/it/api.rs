@@ -185,6 +185,91 @@ async fn multipart_uploads_carry_gltf_resources_and_fields() {
     .await;
 }
 
+/// What browsers and web pipelines send: a Blob named `blob` with its format in `format`, a
+/// `.gltf` whose buffer is `buffers/NAME` sent as `NAME`; files of other applications are
+/// refused as unsupported, with a conversion.
+#[tokio::test]
+async fn uploads_as_browsers_send_them_and_unsupported_kinds_say_how_to_convert() {
+    let app = TestApp::new();
+    let blob = Form::new()
+        .file("file", "blob", fixture("capod_horse_m155_split.glb"))
+        .text("format", "glb")
+        .text("id", "blob");
+    let created = app.post("/v1/models").multipart(blob).send().await;
+    assert_eq!(created.status(), StatusCode::CREATED);
+    assert_eq!(json(created).await["format"], "glb");
+    // No name and no `format`: the content tells.
+    let sniffed = Form::new()
+        .file("file", "blob", fixture("capod_horse_m155_split.glb"))
+        .text("id", "sniffed");
+    assert_eq!(
+        app.post("/v1/models")
+            .multipart(sniffed)
+            .send()
+            .await
+            .status(),
+        StatusCode::CREATED
+    );
+
+    let gltf = String::from_utf8(fixture("gltf_external/tetra.gltf"))
+        .unwrap()
+        .replace("\"tetra.bin\"", "\"buffers/tetra.bin\"");
+    let nested = || {
+        Form::new()
+            .file("file", "tetra.gltf", gltf.clone().into_bytes())
+            .file("file", "tetra.bin", fixture("gltf_external/tetra.bin"))
+    };
+    let created = app
+        .post("/v1/models?id=nested")
+        .multipart(nested())
+        .send()
+        .await;
+    assert_eq!(created.status(), StatusCode::CREATED);
+    // Two files of that base name: which one is meant cannot be told.
+    let ambiguous = nested().file(
+        "file",
+        "other/tetra.bin",
+        fixture("gltf_external/tetra.bin"),
+    );
+    expect_error(
+        app.post("/v1/models?id=ambiguous")
+            .multipart(ambiguous)
+            .send()
+            .await,
+        StatusCode::BAD_REQUEST,
+        "bad_mesh",
+    )
+    .await;
+
+    let fbx = b"Kaydara FBX Binary  \x00\x1a\x00\x00\x00\x00".to_vec();
+    for response in [
+        app.add("id=chair", "application/octet-stream", fbx.clone())
+            .await,
+        app.add(
+            "id=chair&format=fbx",
+            "application/octet-stream",
+            fbx.clone(),
+        )
+        .await,
+        app.post("/v1/models")
+            .multipart(Form::new().file("file", "chair.fbx", fbx.clone()))
+            .send()
+            .await,
+    ] {
+        assert_eq!(response.status(), StatusCode::UNPROCESSABLE_ENTITY);
+        let error = &json(response).await["error"];
+        assert_eq!(error["code"], "unsupported_mesh_feature");
+        assert!(
+            error["message"].as_str().unwrap().contains("FBX"),
+            "{error}"
+        );
+        assert!(
+            error["message"].as_str().unwrap().contains("glTF 2.0"),
+            "{error}"
+        );
+    }
+}
+
 #[tokio::test]
 async fn bad_input_gets_the_right_status_and_the_server_keeps_serving() {
     let app = TestApp::with_config(|config| {
@@ -225,10 +310,18 @@ async fn bad_input_gets_the_right_status_and_the_server_keeps_serving() {
     )
     .await;
     expect_error(
-        app.add("id=x&format=fbx", "application/octet-stream", horse.clone())
+        app.add("id=x&format=xyz", "application/octet-stream", horse.clone())
             .await,
         StatusCode::UNSUPPORTED_MEDIA_TYPE,
         "unsupported_format",
+    )
+    .await;
+    // A format salient knows of but does not read says how to convert it.
+    expect_error(
+        app.add("id=x&format=fbx", "application/octet-stream", horse.clone())
+            .await,
+        StatusCode::UNPROCESSABLE_ENTITY,
+        "unsupported_mesh_feature",
     )
     .await;
     expect_error(

@@ -271,6 +271,24 @@ fn obj_objects_are_merged_with_offsets() {
     assert_eq!(soup[2], [[0., 0., 1.], [0., 1., 1.], [1., 0., 1.]]);
 }
 
+/// A face continued on the next line with `\` is one face; errors name their line.
+#[test]
+fn obj_continued_lines_and_errors_with_line_numbers() {
+    let continued = "v 0 0 0\r\nv 1 0 0\nv 1 1 0\nv 0 1 0\nf 1 2 \\\n  3 4\n";
+    let mesh = load(continued.as_bytes(), Format::Obj).unwrap();
+    assert_eq!(mesh.triangles.len(), 2);
+    for (obj, line) in [
+        ("v 0 0 0\nv 1 0\n", "line 2:"),
+        ("v 0 0 0\nv 1 0 0\nv 0 1 0\n# comment\nf 1 2 x\n", "line 5:"),
+        ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 \\\n 2 0\n", "line 4:"),
+    ] {
+        match load(obj.as_bytes(), Format::Obj) {
+            Err(Error::Parse { message, .. }) => assert!(message.starts_with(line), "{message}"),
+            other => panic!("{obj:?}: {other:?}"),
+        }
+    }
+}
+
 #[test]
 fn gltf_with_sibling_bin_file() {
     let mesh = load_path(&fixture("gltf_external/tetra.gltf"), &Limits::default()).unwrap();
@@ -440,11 +458,39 @@ fn off_variants() {
     assert_tetra(&load(crlf.as_bytes(), Format::Off).unwrap());
 }
 
+/// Classic range scans store their surface as triangle strips, runs separated by -1.
+#[test]
+fn ply_triangle_strips() {
+    let ply = "ply\nformat ascii 1.0\nelement vertex 5\nproperty float x\nproperty float y\n\
+               property float z\nelement tristrips 1\nproperty list int int vertex_indices\n\
+               end_header\n0 0 0\n1 0 0\n0 1 0\n1 1 0\n2 2 0\n8 0 1 2 3 -1 3 2 4\n";
+    let mesh = load(ply.as_bytes(), Format::Ply).unwrap();
+    assert_eq!(mesh.triangles, [[0, 1, 2], [2, 1, 3], [3, 2, 4]]);
+    let bad = ply.replace("3 2 4\n", "3 2 9\n");
+    assert!(matches!(
+        load(bad.as_bytes(), Format::Ply),
+        Err(Error::IndexOutOfRange { index: 9, .. })
+    ));
+}
+
 #[test]
 fn ply_ascii_and_binary() {
     assert_cube(&load(cube_ply_ascii().as_bytes(), Format::Ply).unwrap());
     assert_cube(&load(&cube_ply_le(), Format::Ply).unwrap());
     assert_cube(&load(&cube_ply_be(), Format::Ply).unwrap());
+    // A binary body under a header whose lines end in a lone `\r` (Rhino writes these), or in
+    // `\r\n`.
+    for ending in [&b"\r"[..], b"\r\n"] {
+        let le = cube_ply_le();
+        let end = le.windows(11).position(|w| w == b"end_header\n").unwrap() + 11;
+        let mut file = Vec::new();
+        for line in le[..end].split(|&b| b == b'\n').filter(|l| !l.is_empty()) {
+            file.extend_from_slice(line);
+            file.extend_from_slice(ending);
+        }
+        file.extend_from_slice(&le[end..]);
+        assert_cube(&load(&file, Format::Ply).unwrap());
+    }
 }
 
 #[test]
@@ -1002,7 +1048,6 @@ fn malformed_gltf_structure() {
         ("/bufferViews/0/buffer", json!(3)),
         ("/nodes/0/mesh", json!(5)),
         ("/scene", json!(2)),
-        ("/extensionsRequired", json!(["KHR_draco_mesh_compression"])),
     ] {
         let mut bad = doc.clone();
         let (parent, key) = pointer.rsplit_once('/').unwrap();
@@ -1014,6 +1059,81 @@ fn malformed_gltf_structure() {
             "{pointer}: {result:?}"
         );
     }
+}
+
+/// Files salient does not read are refused as unsupported, naming what they are and a
+/// conversion, not as malformed; extensions that cannot change geometry are ignored.
+#[test]
+fn unsupported_files_name_their_kind_and_a_conversion() {
+    let unsupported = |result: salient_core::Result<RawMesh>, kind: &str| match result {
+        Err(Error::Unsupported {
+            feature,
+            conversion,
+        }) => {
+            assert!(feature.contains(kind), "{feature}");
+            assert!(!conversion.is_empty());
+        }
+        other => panic!("{kind}: {other:?}"),
+    };
+    let doc = tetra_builder().0.json(None);
+    let with_required = |names: serde_json::Value| {
+        let mut doc = doc.clone();
+        doc["nodes"] = json!([{ "mesh": 0 }]);
+        doc["extensionsRequired"] = names;
+        common::glb(&doc, &tetra_builder().0.bin)
+    };
+    unsupported(
+        load(
+            &with_required(json!(["KHR_draco_mesh_compression"])),
+            Format::Glb,
+        ),
+        "KHR_draco_mesh_compression",
+    );
+    unsupported(
+        load(
+            &with_required(json!(["EXT_meshopt_compression"])),
+            Format::Glb,
+        ),
+        "EXT_meshopt_compression",
+    );
+    let harmless = load(
+        &with_required(json!(["KHR_techniques_webgl", "KHR_materials_unlit"])),
+        Format::Glb,
+    );
+    assert_tetra(&harmless.expect("extensions that cannot change geometry are ignored"));
+
+    let gltf_1 = json!({"asset": {"version": "1.0"}, "meshes": {"m": {"primitives": []}}});
+    unsupported(
+        load(gltf_1.to_string().as_bytes(), Format::Gltf),
+        "glTF 1.0",
+    );
+
+    let dir = tempfile::tempdir().unwrap();
+    for (name, bytes, kind) in [
+        (
+            "chair.fbx",
+            b"Kaydara FBX Binary  \x00\x1a\x00".to_vec(),
+            "FBX",
+        ),
+        ("chair.bin", b"; FBX 7.4.0 project file\n".to_vec(), "FBX"),
+        ("chair.blend", b"BLENDER-v402REND".to_vec(), "Blender"),
+        ("chair.usdz", b"PK\x03\x04....chair.usdc".to_vec(), "USD"),
+        (
+            "print.3mf",
+            b"PK\x03\x04....3D/3dmodel.model".to_vec(),
+            "3MF",
+        ),
+        ("unnamed", b"PK\x03\x04....3D/3dmodel.model".to_vec(), "3MF"),
+    ] {
+        let path = dir.path().join(name);
+        std::fs::write(&path, &bytes).unwrap();
+        unsupported(
+            salient_core::mesh::load_path(&path, &Limits::default()),
+            kind,
+        );
+    }
+    assert!(salient_core::mesh::unsupported(b"solid cube\nfacet", None).is_none());
+    assert!(salient_core::mesh::unsupported(b"v 0 0 0\n", Some("cube.obj")).is_none());
 }
 
 // ---------------------------------------------------------------------------------------

@@ -12,6 +12,15 @@ pub enum Error {
     #[error("unrecognised mesh format ({0}); supported: OBJ, glTF (.gltf/.glb), OFF, PLY, STL")]
     UnknownFormat(String),
 
+    /// The file is of a kind salient does not read (another application's format, glTF 1.0,
+    /// a glTF extension that changes geometry): what it is, and how to convert it to one it
+    /// reads. Not a corrupt file: the same bytes converted load.
+    #[error("{feature} is not supported: {conversion}")]
+    Unsupported {
+        feature: String,
+        conversion: &'static str,
+    },
+
     /// The file could not be read from disk.
     #[error("cannot read {path}: {source}")]
     Io {

@@ -387,7 +387,8 @@ pub struct Request<'a> {
     pub scope: Scope<'a>,
     /// Only hits at most this far (infinite: the `k` nearest whatever their distance).
     pub within: f64,
-    /// Every entry's exact distance, no pruning: the reference a pruned ranking must match.
+    /// For a model: every entry's exact distance, no pruning, the reference a pruned ranking
+    /// must match.
     pub exhaustive: bool,
 }
 
@@ -468,7 +469,7 @@ impl<'a> Request<'a> {
         }
     }
 
-    /// Compared under `params` rather than the index's own.
+    /// A model compared under `params` rather than the index's own.
     pub fn params(self, params: &'a SimilarityParams) -> Self {
         let query = match self.query {
             Query::Model {

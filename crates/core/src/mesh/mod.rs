@@ -12,7 +12,7 @@ pub mod topology;
 pub mod weld;
 pub mod write;
 
-pub use load::{load_bytes, load_path, Format, Resources};
+pub use load::{load_bytes, load_path, unsupported, Format, Resources};
 pub use prepare::{prepare, PrepareStats, PreparedMesh};
 pub use topology::Topology;
 

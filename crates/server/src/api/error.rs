@@ -43,6 +43,10 @@ pub enum AppError {
     /// A well-formed mesh that cannot be used (no triangles, degenerate, …).
     #[error("{0}")]
     Unprocessable(String),
+    /// A file of a kind or with a feature salient does not read; the message says how to
+    /// convert it.
+    #[error("{0}")]
+    UnsupportedFeature(String),
     /// The key made more requests than its rate allows: retry later.
     #[error("too many requests with this API key; retry in {retry_after_secs} s")]
     RateLimited { retry_after_secs: u64 },
@@ -111,6 +115,9 @@ impl AppError {
                 (StatusCode::UNSUPPORTED_MEDIA_TYPE, "unsupported_format")
             }
             AppError::Unprocessable(_) => (StatusCode::UNPROCESSABLE_ENTITY, "unusable_mesh"),
+            AppError::UnsupportedFeature(_) => {
+                (StatusCode::UNPROCESSABLE_ENTITY, "unsupported_mesh_feature")
+            }
             AppError::RateLimited { .. } => (StatusCode::TOO_MANY_REQUESTS, "rate_limited"),
             AppError::Overloaded { .. } => (StatusCode::SERVICE_UNAVAILABLE, "overloaded"),
             AppError::Timeout(_) => (StatusCode::SERVICE_UNAVAILABLE, "timeout"),
@@ -160,6 +167,7 @@ impl From<salient_core::Error> for AppError {
         use salient_core::Error as E;
         match e {
             E::UnknownFormat(_) => AppError::UnsupportedMediaType(e.to_string()),
+            E::Unsupported { .. } => AppError::UnsupportedFeature(e.to_string()),
             E::TooLarge { .. } => AppError::PayloadTooLarge(e.to_string()),
             E::NoTriangles
             | E::OnlyDegenerate { .. }

@@ -2,6 +2,7 @@
 //! (one mesh file, any glTF resources as further files, and the model's fields).
 
 use std::collections::BTreeMap;
+use std::path::Path;
 
 use axum::body::Bytes;
 use axum::extract::{FromRequest, Multipart, Request};
@@ -10,7 +11,7 @@ use serde::Deserialize;
 
 use super::error::AppError;
 use crate::model::{Fields, ModelId, Upload};
-use salient_core::mesh::Format;
+use salient_core::mesh::{self, Format};
 
 /// Descriptive fields of a model, from the query string or multipart fields.
 #[derive(Debug, Clone, Default, Deserialize, utoipa::IntoParams)]
@@ -80,9 +81,24 @@ pub struct MeshUpload {
     pub fields: ModelFields,
 }
 
-fn format_named(name: &str) -> Result<Format, AppError> {
-    Format::from_extension(name)
-        .ok_or_else(|| AppError::UnsupportedMediaType(format!("unknown mesh format {name:?}")))
+/// The format a `format=` field or a file name's extension names; a kind salient does not
+/// read is refused with how to convert it.
+fn format_named(name: &str, body: &[u8]) -> Result<Format, AppError> {
+    let extension = name.rsplit('.').next().unwrap_or(name);
+    Format::from_extension(extension).ok_or_else(|| match mesh::unsupported(body, Some(name)) {
+        Some(error) => error.into(),
+        None => AppError::UnsupportedMediaType(format!("unknown mesh format {name:?}")),
+    })
+}
+
+/// The format of a body nothing names: its content's, or a kind salient does not read.
+fn format_sniffed(body: &[u8]) -> Result<Format, AppError> {
+    Format::sniff(body).ok_or_else(|| match mesh::unsupported(body, None) {
+        Some(error) => error.into(),
+        None => AppError::UnsupportedMediaType(
+            "cannot tell the mesh format from the body; set Content-Type or ?format=".into(),
+        ),
+    })
 }
 
 impl<S: Send + Sync> FromRequest<S> for MeshUpload {
@@ -118,14 +134,18 @@ impl<S: Send + Sync> FromRequest<S> for MeshUpload {
             .trim()
             .to_ascii_lowercase();
         let format = match (&query.format, Format::from_content_type(&content_type)) {
-            (Some(name), _) => format_named(name)?,
+            (Some(name), _) => format_named(name, &body)?,
             (None, Some(format)) => format,
-            (None, None) if essence.is_empty() || essence == "application/octet-stream" => Format::sniff(&body)
-                .ok_or_else(|| AppError::UnsupportedMediaType("cannot tell the mesh format from the body; set Content-Type or ?format=".into()))?,
+            (None, None) if essence.is_empty() || essence == "application/octet-stream" => {
+                format_sniffed(&body)?
+            }
             (None, None) => {
+                if let Some(error) = mesh::unsupported(&body, None) {
+                    return Err(error.into());
+                }
                 return Err(AppError::UnsupportedMediaType(format!(
                     "unsupported content type {essence:?}; use model/obj, model/gltf-binary, model/gltf+json, model/stl, model/ply or model/x-off"
-                )))
+                )));
             }
         };
         Ok(MeshUpload {
@@ -139,14 +159,16 @@ impl<S: Send + Sync> FromRequest<S> for MeshUpload {
 }
 
 /// Multipart: text fields `id`, `name`, `tags`, `class`, `format` (over those of the query
-/// string); file fields are the mesh (the first whose name has a mesh extension) and its
-/// resources (by file name).
+/// string); file fields are the mesh — the first whose file name has a mesh extension, else
+/// the field named `file` whatever its file name (a browser's `FormData` names a Blob `blob`)
+/// — and its resources (by file name). The mesh's format is `format`'s, else its file name's,
+/// else its content's.
 async fn from_multipart(
     mut multipart: Multipart,
     mut fields: ModelFields,
 ) -> Result<MeshUpload, AppError> {
-    let mut mesh: Option<(Format, Bytes)> = None;
-    let mut resources = BTreeMap::new();
+    // Every file, in order: (field name, file name, bytes).
+    let mut files: Vec<(String, String, Bytes)> = Vec::new();
     while let Some(field) = multipart.next_field().await? {
         let name = field.name().unwrap_or("").to_string();
         match (field.file_name().map(String::from), name.as_str()) {
@@ -161,15 +183,7 @@ async fn from_multipart(
                 };
                 *slot = Some(value);
             }
-            (Some(file_name), _) => {
-                let bytes = field.bytes().await?;
-                match Format::from_extension(file_name.rsplit('.').next().unwrap_or("")) {
-                    Some(format) if mesh.is_none() => mesh = Some((format, bytes)),
-                    _ => {
-                        resources.insert(file_name, bytes);
-                    }
-                }
-            }
+            (Some(file_name), _) => files.push((name, file_name, field.bytes().await?)),
             (None, other) => {
                 return Err(AppError::bad_request(
                     "invalid_multipart",
@@ -178,15 +192,30 @@ async fn from_multipart(
             }
         }
     }
-    let (mut format, mesh) = mesh.ok_or_else(|| {
-        AppError::bad_request(
-            "empty_body",
-            "no mesh file in the form (a file with a mesh extension)",
-        )
-    })?;
-    if let Some(name) = fields.format.take() {
-        format = format_named(&name)?;
-    }
+    let named_mesh = |file_name: &str| Format::from_path(Path::new(file_name)).is_some();
+    let chosen = files
+        .iter()
+        .position(|(_, file_name, _)| named_mesh(file_name))
+        .or_else(|| files.iter().position(|(field, _, _)| field == "file"))
+        .ok_or_else(|| {
+            AppError::bad_request(
+                "empty_body",
+                "no mesh file in the form (a file with a mesh extension, or a file field named `file`)",
+            )
+        })?;
+    let (_, file_name, mesh) = files.remove(chosen);
+    let resources: BTreeMap<String, Bytes> = files
+        .into_iter()
+        .map(|(_, file_name, bytes)| (file_name, bytes))
+        .collect();
+    let format = match fields.format.take() {
+        Some(name) => format_named(&name, &mesh)?,
+        None if named_mesh(&file_name) => format_named(&file_name, &mesh)?,
+        None => match mesh::unsupported(&mesh, Some(&file_name)) {
+            Some(error) => return Err(error.into()),
+            None => format_sniffed(&mesh)?,
+        },
+    };
     Ok(MeshUpload {
         upload: Upload::new(format, mesh, resources),
         fields,

@@ -32,13 +32,16 @@ use crate::params::Limits;
 
 /// Required extensions that do not change geometry, or whose geometry this loader reads
 /// (`KHR_mesh_quantization`: integer positions). Any other required extension is refused, as
-/// the glTF specification demands (e.g. Draco or meshopt compression).
-const HARMLESS_EXTENSIONS: [&str; 5] = [
+/// the glTF specification demands (e.g. Draco or meshopt compression), as unsupported.
+const HARMLESS_EXTENSIONS: [&str; 8] = [
     "KHR_mesh_quantization",
     "KHR_materials_",
     "KHR_texture_",
     "EXT_texture_",
     "KHR_lights_",
+    "KHR_techniques_webgl",
+    "KHR_xmp",
+    "EXT_lights_",
 ];
 
 /// Loads a `.gltf` or `.glb` file (either is accepted whatever `format` says; `format` names
@@ -56,17 +59,25 @@ pub(super) fn load(
         bytes.strip_prefix(b"\xEF\xBB\xBF").unwrap_or(bytes)
     };
     let ::gltf::Gltf { document, blob } = ::gltf::Gltf::from_slice_without_validation(bytes)
-        .map_err(|e| parse_error(format, e.to_string()))?;
+        .map_err(|e| {
+            if is_gltf_1(bytes) {
+                return Error::Unsupported {
+                    feature: "glTF 1.0".into(),
+                    conversion: "convert it to glTF 2.0, e.g. `npx gltf-pipeline -i model.gltf -o model-2.gltf` (gltf-pipeline upgrades 1.0 files), or import and export it in Blender",
+                };
+            }
+            parse_error(format, e.to_string())
+        })?;
     let root = document.into_json();
     if let Some(name) = root.extensions_required.iter().find(|name| {
         !HARMLESS_EXTENSIONS
             .iter()
             .any(|prefix| name.starts_with(prefix))
     }) {
-        return Err(parse_error(
-            format,
-            format!("the file requires the unsupported extension {name}"),
-        ));
+        return Err(Error::Unsupported {
+            feature: format!("the required glTF extension {name}"),
+            conversion: "save the file again without it, e.g. `npx @gltf-transform/cli copy` to a file without compression, or Blender's glTF export with compression and GPU instancing off",
+        });
     }
 
     let mut reader = Reader {
@@ -83,6 +94,19 @@ pub(super) fn load(
         }
     }
     Ok(mesh)
+}
+
+/// Whether a file `gltf` cannot read is glTF 1.0: a GLB of version 1, or JSON whose
+/// `asset.version` starts with 1 (1.0 files name it; a few name none, and are not told apart).
+fn is_gltf_1(bytes: &[u8]) -> bool {
+    if bytes.starts_with(b"glTF") {
+        return bytes.get(4..8) == Some(&1u32.to_le_bytes()[..]);
+    }
+    serde_json::from_slice::<serde_json::Value>(bytes).is_ok_and(|json| {
+        json["asset"]["version"]
+            .as_str()
+            .is_some_and(|v| v.starts_with("1."))
+    })
 }
 
 /// Rejects a GLB header whose total length is shorter than the header itself: `gltf`

@@ -55,6 +55,69 @@ impl Format {
     }
 }
 
+/// A kind of file salient does not read, and how to make one it reads.
+struct Foreign {
+    kind: &'static str,
+    extensions: &'static [&'static str],
+    /// Whether the first bytes are this kind's.
+    signature: fn(&[u8]) -> bool,
+    conversion: &'static str,
+}
+
+/// Whether `bytes` is a zip archive holding an entry whose name contains `entry`.
+fn zip_holding(bytes: &[u8], entry: &[u8]) -> bool {
+    bytes.starts_with(b"PK\x03\x04") && contains(&bytes[..bytes.len().min(1 << 16)], entry)
+}
+
+/// What users most often send instead of a mesh file of ours: 3D applications' own formats.
+const FOREIGN: [Foreign; 4] = [
+    Foreign {
+        kind: "FBX",
+        extensions: &["fbx"],
+        signature: |b| b.starts_with(b"Kaydara FBX Binary") || b.starts_with(b"; FBX"),
+        conversion: "export it as glTF 2.0 (.glb) or OBJ, e.g. in Blender: File > Import > FBX, then File > Export > glTF 2.0",
+    },
+    Foreign {
+        kind: "USD / USDZ",
+        extensions: &["usdz", "usd", "usda", "usdc"],
+        signature: |b| {
+            b.starts_with(b"PXR-USDC") || b.starts_with(b"#usda") || zip_holding(b, b".usdc") || zip_holding(b, b".usda")
+        },
+        conversion: "export it as glTF 2.0 (.glb), e.g. in Blender: File > Import > Universal Scene Description, then File > Export > glTF 2.0",
+    },
+    Foreign {
+        kind: "a Blender file (.blend)",
+        extensions: &["blend"],
+        signature: |b| b.starts_with(b"BLENDER"),
+        conversion: "export it from Blender as glTF 2.0 (File > Export > glTF 2.0) or STL",
+    },
+    Foreign {
+        kind: "3MF",
+        extensions: &["3mf"],
+        signature: |b| zip_holding(b, b"3dmodel.model"),
+        conversion: "export it as STL (every slicer and CAD tool can: File > Export > STL)",
+    },
+];
+
+/// The [`Error::Unsupported`] for a file of a kind salient does not read, recognised by its
+/// first bytes or by its extension (`name`, a file name or a bare extension); `None` for
+/// anything else.
+pub fn unsupported(bytes: &[u8], name: Option<&str>) -> Option<Error> {
+    let extension = name.map(|n| n.rsplit('.').next().unwrap_or(n).to_ascii_lowercase());
+    FOREIGN
+        .iter()
+        .find(|f| {
+            (f.signature)(bytes)
+                || extension
+                    .as_deref()
+                    .is_some_and(|e| f.extensions.contains(&e))
+        })
+        .map(|f| Error::Unsupported {
+            feature: f.kind.to_string(),
+            conversion: f.conversion,
+        })
+}
+
 /// External files a glTF may reference (sibling `.bin` buffers). Uploads supply them in memory,
 /// files on disk from their directory.
 pub trait Resources {
@@ -93,16 +156,38 @@ impl Resources for DirResources {
     }
 }
 
-/// In-memory resources keyed by URI, e.g. the other parts of a multipart upload.
+/// Which of `names` supplies `uri`: the one equal to it, else the only one with its base name
+/// (a browser sends `x.bin` for a `.gltf`'s `buffers/x.bin`, never the path); `None` when
+/// there is none or several.
+fn supplying<'a>(
+    mut names: impl Iterator<Item = &'a String> + Clone,
+    uri: &str,
+) -> Option<&'a String> {
+    if let Some(exact) = names.clone().find(|name| *name == uri) {
+        return Some(exact);
+    }
+    let base = |name: &str| name.rsplit(['/', '\\']).next().unwrap_or(name).to_string();
+    let wanted = base(uri);
+    let mut same_base = names.by_ref().filter(|name| base(name) == wanted);
+    match (same_base.next(), same_base.next()) {
+        (Some(only), None) => Some(only),
+        _ => None,
+    }
+}
+
+/// In-memory resources keyed by file name or URI, e.g. the other parts of a multipart
+/// upload ([`supplying`]).
 impl<B: AsRef<[u8]>> Resources for HashMap<String, B> {
     fn get(&self, uri: &str) -> Option<Vec<u8>> {
-        HashMap::get(self, uri).map(|b| b.as_ref().to_vec())
+        let name = supplying(self.keys(), uri)?;
+        HashMap::get(self, name).map(|b| b.as_ref().to_vec())
     }
 }
 
 impl<B: AsRef<[u8]>> Resources for std::collections::BTreeMap<String, B> {
     fn get(&self, uri: &str) -> Option<Vec<u8>> {
-        std::collections::BTreeMap::get(self, uri).map(|b| b.as_ref().to_vec())
+        let name = supplying(self.keys(), uri)?;
+        std::collections::BTreeMap::get(self, name).map(|b| b.as_ref().to_vec())
     }
 }
 
@@ -131,9 +216,15 @@ pub fn load_path(path: &Path, limits: &Limits) -> Result<RawMesh> {
         path: path.to_path_buf(),
         source,
     })?;
-    let format = Format::from_path(path)
-        .or_else(|| Format::sniff(&bytes))
-        .ok_or_else(|| Error::UnknownFormat(path.display().to_string()))?;
+    let name = path.file_name().and_then(|n| n.to_str());
+    let format = match Format::from_path(path) {
+        Some(format) => format,
+        None => match unsupported(&bytes, name) {
+            Some(error) => return Err(error),
+            None => Format::sniff(&bytes)
+                .ok_or_else(|| Error::UnknownFormat(path.display().to_string()))?,
+        },
+    };
     let dir = path.parent().unwrap_or(Path::new(".")).to_path_buf();
     load_bytes(&bytes, format, &DirResources(dir), limits)
 }

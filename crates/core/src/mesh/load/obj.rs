@@ -54,7 +54,8 @@ pub(super) fn load(bytes: &[u8], limits: &Limits) -> Result<RawMesh> {
 }
 
 /// The `v` and `f` lines of `bytes`, after checking the vertex and triangle counts against the
-/// limits and every face index against the vertices.
+/// limits, the lines' syntax and every face index against the vertices. A line ending in `\`
+/// goes on on the next (some exporters wrap long faces so); errors name the line (from 1).
 fn geometry_lines(bytes: &[u8], limits: &Limits) -> Result<Vec<u8>> {
     let mut kept = Vec::new();
     let mut vertices = 0usize;
@@ -62,37 +63,64 @@ fn geometry_lines(bytes: &[u8], limits: &Limits) -> Result<Vec<u8>> {
     let mut faces = 0usize;
     // The largest absolute index and its face: it can only be checked once all `v` are known.
     let mut largest: Option<(u64, usize)> = None;
-    for line in bytes.split(|&b| b == b'\n') {
+    let mut joined: Vec<u8> = Vec::new();
+    let mut first_line = 0;
+    for (number, physical) in bytes.split(|&b| b == b'\n').enumerate() {
+        let physical = physical.trim_ascii_end();
+        if joined.is_empty() {
+            first_line = number + 1;
+        }
+        if let Some(head) = physical.strip_suffix(b"\\") {
+            joined.extend_from_slice(head);
+            joined.push(b' ');
+            continue;
+        }
+        let line = if joined.is_empty() {
+            physical
+        } else {
+            joined.extend_from_slice(physical);
+            &joined[..]
+        };
+        let error =
+            |message: String| parse_error(Format::Obj, format!("line {first_line}: {message}"));
         let mut words = line
             .split(|b| b.is_ascii_whitespace())
             .filter(|w| !w.is_empty());
         match words.next() {
-            Some(b"v") => vertices += 1,
+            Some(b"v") => {
+                let numbers = words
+                    .take(3)
+                    .filter(|w| std::str::from_utf8(w).is_ok_and(|w| w.parse::<f64>().is_ok()))
+                    .count();
+                if numbers < 3 {
+                    return Err(error("a vertex needs three coordinates".into()));
+                }
+                vertices += 1;
+            }
             Some(b"f") => {
                 let mut corners = 0usize;
                 for word in words {
                     corners += 1;
                     let Some(index) = position_index(word) else {
-                        continue; // not a number: tobj reports the syntax error
+                        return Err(error(format!(
+                            "face corner `{}` is not a vertex index",
+                            String::from_utf8_lossy(word)
+                        )));
                     };
                     let index = match index {
                         1.. => index.unsigned_abs() - 1,
                         0 => {
-                            return Err(parse_error(
-                                Format::Obj,
-                                format!("face {faces} uses index 0 (OBJ indices start at 1)"),
-                            ))
+                            return Err(error(format!(
+                                "face {faces} uses index 0 (OBJ indices start at 1)"
+                            )))
                         }
                         _ => match u64::try_from(vertices as i128 + i128::from(index)) {
                             Ok(resolved) => resolved,
                             Err(_) => {
-                                return Err(parse_error(
-                                    Format::Obj,
-                                    format!(
-                                        "face {faces} uses relative index {index}, but only \
-                                         {vertices} vertices precede it"
-                                    ),
-                                ))
+                                return Err(error(format!(
+                                    "face {faces} uses relative index {index}, but only \
+                                     {vertices} vertices precede it"
+                                )))
                             }
                         },
                     };
@@ -103,10 +131,14 @@ fn geometry_lines(bytes: &[u8], limits: &Limits) -> Result<Vec<u8>> {
                 triangles = triangles.saturating_add(corners.saturating_sub(2));
                 faces += 1;
             }
-            _ => continue,
+            _ => {
+                joined.clear();
+                continue;
+            }
         }
         kept.extend_from_slice(line);
         kept.push(b'\n');
+        joined.clear();
     }
     check_limit("vertices", vertices, limits.max_input_vertices)?;
     check_limit("triangles", triangles, limits.max_input_triangles)?;

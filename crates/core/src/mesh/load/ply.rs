@@ -8,6 +8,7 @@
 //! the bytes left after the header: an element count is not bounded by the crate otherwise, and
 //! elements without properties would take no bytes at all.
 
+use std::borrow::Cow;
 use std::io::{BufRead, Cursor};
 
 use glam::DVec3;
@@ -17,7 +18,7 @@ use ply_rs_bw::ply::{
 };
 
 use super::{check_limit, parse_error, push_fan, Format};
-use crate::error::Result;
+use crate::error::{Error, Result};
 use crate::mesh::RawMesh;
 use crate::params::Limits;
 
@@ -27,9 +28,11 @@ const INDEX_PROPERTIES: [&str; 2] = ["vertex_indices", "vertex_index"];
 /// Loads a PLY file.
 pub(super) fn load(bytes: &[u8], limits: &Limits) -> Result<RawMesh> {
     let parser = Parser::<Record>::new();
-    let mut reader = Reader::new(Cursor::new(bytes));
-    let header = parser.read_header(&mut reader).map_err(error)?;
-    let mut cursor = reader.into_inner();
+    let (header_text, body) = split_header(bytes);
+    let header = parser
+        .read_header(&mut Reader::new(Cursor::new(&header_text[..])))
+        .map_err(error)?;
+    let mut cursor = Cursor::new(body);
 
     let vertex = header.elements.get("vertex");
     let face = header.elements.get("face");
@@ -53,7 +56,8 @@ pub(super) fn load(bytes: &[u8], limits: &Limits) -> Result<RawMesh> {
             }
         }
     }
-    if let Some(face) = face.filter(|f| f.count > 0) {
+    let strips = header.elements.get("tristrips");
+    for face in [face, strips].into_iter().flatten().filter(|f| f.count > 0) {
         let has_indices = INDEX_PROPERTIES.iter().any(|name| {
             matches!(
                 face.properties.get(*name).map(|p| &p.data_type),
@@ -63,11 +67,14 @@ pub(super) fn load(bytes: &[u8], limits: &Limits) -> Result<RawMesh> {
         if !has_indices {
             return Err(parse_error(
                 Format::Ply,
-                "the face element has no integer list property `vertex_indices`",
+                format!(
+                    "the {} element has no integer list property `vertex_indices`",
+                    face.name
+                ),
             ));
         }
     }
-    let available = bytes.len().saturating_sub(cursor.position() as usize);
+    let available = body.len();
     let needed = header.elements.values().fold(0usize, |sum, element| {
         sum.saturating_add(
             element
@@ -90,11 +97,11 @@ pub(super) fn load(bytes: &[u8], limits: &Limits) -> Result<RawMesh> {
     };
     let mut corners = Vec::new();
     let mut line = String::new();
-    // Elements after both `vertex` and `face` need not be read.
+    // Elements after `vertex` and the faces need not be read.
     let last = header
         .elements
         .keys()
-        .rposition(|name| name == "vertex" || name == "face")
+        .rposition(|name| matches!(name.as_str(), "vertex" | "face" | "tristrips"))
         .map_or(0, |i| i + 1);
     for element in header.elements.values().take(last) {
         for item in 0..element.count {
@@ -132,11 +139,53 @@ pub(super) fn load(bytes: &[u8], limits: &Limits) -> Result<RawMesh> {
                     }
                     push_fan(&mut mesh.triangles, item, &corners, vertex_count, limits)?;
                 }
+                "tristrips" => {
+                    push_strips(&mut mesh.triangles, &record.indices, vertex_count, limits)?
+                }
                 _ => {}
             }
         }
     }
     Ok(mesh)
+}
+
+/// Appends the triangles of triangle strips (`element tristrips`, as classic range scans are
+/// stored): runs of vertex indices separated by -1, every three consecutive indices of a run a
+/// triangle, every second one turned to keep the winding.
+fn push_strips(
+    triangles: &mut Vec<[u32; 3]>,
+    indices: &[i64],
+    vertex_count: usize,
+    limits: &Limits,
+) -> Result<()> {
+    let mut strip = Vec::new();
+    for run in indices.split(|&i| i == -1) {
+        strip.clear();
+        for &index in run {
+            let id = u32::try_from(index)
+                .ok()
+                .filter(|&i| (i as usize) < vertex_count)
+                .ok_or(Error::IndexOutOfRange {
+                    // The triangle it would have been part of.
+                    face: triangles.len() + strip.len().saturating_sub(2),
+                    index: index.unsigned_abs(),
+                    vertex_count,
+                })?;
+            strip.push(id);
+        }
+        check_limit(
+            "triangles",
+            triangles
+                .len()
+                .saturating_add(strip.len().saturating_sub(2)),
+            limits.max_input_triangles,
+        )?;
+        triangles.extend(strip.windows(3).enumerate().map(|(k, t)| match k % 2 {
+            0 => [t[0], t[1], t[2]],
+            _ => [t[1], t[0], t[2]],
+        }));
+    }
+    Ok(())
 }
 
 /// The properties of one PLY element that the loader uses; everything else is ignored.
@@ -188,6 +237,31 @@ impl PropertyAccess for Record {
 /// Whether a PLY scalar type is an integer type.
 fn is_integer(t: &ScalarType) -> bool {
     !matches!(t, ScalarType::Float | ScalarType::Double)
+}
+
+/// The header, its line ends made `\n`, and the data after it. Some writers (Rhino) end the
+/// header's lines with a lone `\r`, which `ply-rs-bw` reads as one line running into the
+/// binary data; `\n` and `\r\n` headers are passed as they are.
+fn split_header(bytes: &[u8]) -> (Cow<'_, [u8]>, &[u8]) {
+    const END: &[u8] = b"end_header";
+    let Some(at) = bytes.windows(END.len()).position(|w| w == END) else {
+        return (Cow::Borrowed(bytes), &[]);
+    };
+    let after = &bytes[at + END.len()..];
+    let ending = match after {
+        [b'\r', b'\n', ..] => 2,
+        [b'\r', ..] | [b'\n', ..] => 1,
+        _ => 0,
+    };
+    let (header, body) = bytes.split_at(at + END.len() + ending);
+    if bytes.get(3) == Some(&b'\r') && bytes.get(4) != Some(&b'\n') {
+        let text = header
+            .iter()
+            .map(|&b| if b == b'\r' { b'\n' } else { b })
+            .collect();
+        return (Cow::Owned(text), body);
+    }
+    (Cow::Borrowed(header), body)
 }
 
 /// The fewest bytes one item of `element` can take: in text, a character and a separator per
