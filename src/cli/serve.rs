@@ -50,6 +50,9 @@ pub struct Args {
     /// Largest vertex count of an uploaded mesh (before welding).
     #[arg(long, env = "SALIENT_MAX_VERTICES")]
     max_vertices: Option<usize>,
+    /// Largest triangle count of an uploaded mesh (polygons count as their triangles).
+    #[arg(long, env = "SALIENT_MAX_TRIANGLES")]
+    max_triangles: Option<usize>,
     /// Re-extract stale signatures in the background at start (`true` or `false`).
     #[arg(long, env = "SALIENT_REINDEX_ON_START")]
     reindex_on_start: Option<bool>,
@@ -96,6 +99,8 @@ impl Args {
             .unwrap_or(config.request_timeout_secs);
         config.limits.max_input_vertices =
             a.max_vertices.unwrap_or(config.limits.max_input_vertices);
+        config.limits.max_input_triangles =
+            a.max_triangles.unwrap_or(config.limits.max_input_triangles);
         config.cors_origins = a.cors_origins.unwrap_or(config.cors_origins);
         config.reindex_on_start = a.reindex_on_start.unwrap_or(config.reindex_on_start);
         config.keys_file = a.keys_file.or(config.keys_file);

@@ -278,20 +278,34 @@ async fn bad_input_gets_the_right_status_and_the_server_keeps_serving() {
     });
     let horse = fixture("capod_horse_m155.obj");
 
-    let big = vec![b'#'; 300_000];
-    expect_error(
-        app.add("id=big", "model/obj", big).await,
-        StatusCode::PAYLOAD_TOO_LARGE,
-        "payload_too_large",
-    )
-    .await;
-    let many = obj(&shapes::icosphere(4)); // 2 562 vertices, over --max-vertices
+    // Every 413 names the limit and how to raise it.
+    let big = app.add("id=big", "model/obj", vec![b'#'; 300_000]).await;
+    assert!(big.text().contains("--max-body-bytes"), "{}", big.text());
+    expect_error(big, StatusCode::PAYLOAD_TOO_LARGE, "payload_too_large").await;
+    let many = obj(&shapes::icosphere(4)); // over the body limit
     expect_error(
         app.add("id=many", "model/obj", many).await,
         StatusCode::PAYLOAD_TOO_LARGE,
         "payload_too_large",
     )
     .await;
+    // A mesh over a count limit: 162 vertices, 320 triangles.
+    let small = obj(&shapes::icosphere(2));
+    for (configure, flag) in [
+        (
+            (|c: &mut Config| c.limits.max_input_vertices = 100) as fn(&mut Config),
+            "--max-vertices",
+        ),
+        (
+            |c: &mut Config| c.limits.max_input_triangles = 300,
+            "--max-triangles",
+        ),
+    ] {
+        let limited = TestApp::with_config(configure);
+        let refused = limited.add("id=many", "model/obj", small.clone()).await;
+        assert!(refused.text().contains(flag), "{}", refused.text());
+        expect_error(refused, StatusCode::PAYLOAD_TOO_LARGE, "payload_too_large").await;
+    }
     expect_error(
         app.add("id=json", "application/json", b"{}".to_vec()).await,
         StatusCode::UNSUPPORTED_MEDIA_TYPE,

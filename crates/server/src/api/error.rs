@@ -168,7 +168,9 @@ impl From<salient_core::Error> for AppError {
         match e {
             E::UnknownFormat(_) => AppError::UnsupportedMediaType(e.to_string()),
             E::Unsupported { .. } => AppError::UnsupportedFeature(e.to_string()),
-            E::TooLarge { .. } => AppError::PayloadTooLarge(e.to_string()),
+            E::TooLarge { what, .. } => {
+                AppError::PayloadTooLarge(format!("{e}: {}", limit_of(what)))
+            }
             E::NoTriangles
             | E::OnlyDegenerate { .. }
             | E::TooFewVertices { .. }
@@ -201,10 +203,27 @@ impl From<StoreError> for AppError {
     }
 }
 
+/// Which setting bounds the count a [`salient_core::Error::TooLarge`] names, and how an
+/// operator raises it.
+fn limit_of(what: &str) -> &'static str {
+    match what {
+        "vertices" => {
+            "the server's `limits.max_input_vertices` (--max-vertices, SALIENT_MAX_VERTICES)"
+        }
+        "triangles" | "faces" => {
+            "the server's `limits.max_input_triangles` (--max-triangles, SALIENT_MAX_TRIANGLES)"
+        }
+        _ => "the server's `limits`",
+    }
+}
+
+/// What a 413 for a request body says: axum's rejection knows neither the limit nor its name.
+pub const BODY_LIMIT: &str = "the request body is larger than the server's `max_body_bytes` (--max-body-bytes, SALIENT_MAX_BODY_BYTES)";
+
 /// A rejection with axum's status: 413 for a body over the limit, else a bad request.
 fn rejection(status: StatusCode, code: &'static str, message: String) -> AppError {
     if status == StatusCode::PAYLOAD_TOO_LARGE {
-        AppError::PayloadTooLarge(message)
+        AppError::PayloadTooLarge(BODY_LIMIT.to_string())
     } else if status == StatusCode::UNSUPPORTED_MEDIA_TYPE {
         AppError::UnsupportedMediaType(message)
     } else {
