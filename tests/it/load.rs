@@ -471,6 +471,11 @@ fn ply_triangle_strips() {
         load(bad.as_bytes(), Format::Ply),
         Err(Error::IndexOutOfRange { index: 9, .. })
     ));
+    // A text element's error names its line: the header's 9, then the second vertex.
+    match load(ply.replace("1 0 0\n", "1 zero 0\n").as_bytes(), Format::Ply) {
+        Err(Error::Parse { message, .. }) => assert!(message.starts_with("line 11:"), "{message}"),
+        other => panic!("{other:?}"),
+    }
 }
 
 #[test]

@@ -97,6 +97,8 @@ pub(super) fn load(bytes: &[u8], limits: &Limits) -> Result<RawMesh> {
     };
     let mut corners = Vec::new();
     let mut line = String::new();
+    // Text elements' line numbers, from 1 at the file's first line, for errors.
+    let mut line_number = header_text.iter().filter(|&&b| b == b'\n').count();
     // Elements after `vertex` and the faces need not be read.
     let last = header
         .elements
@@ -117,14 +119,18 @@ pub(super) fn load(bytes: &[u8], limits: &Limits) -> Result<RawMesh> {
                             ),
                         ));
                     }
-                    parser.read_ascii_element(&line, element)
+                    line_number += 1;
+                    parser
+                        .read_ascii_element(&line, element)
+                        .map_err(|e| parse_error(Format::Ply, format!("line {line_number}: {e}")))?
                 }
-                Encoding::BinaryLittleEndian => {
-                    parser.read_little_endian_element(&mut cursor, element)
-                }
-                Encoding::BinaryBigEndian => parser.read_big_endian_element(&mut cursor, element),
-            }
-            .map_err(error)?;
+                Encoding::BinaryLittleEndian => parser
+                    .read_little_endian_element(&mut cursor, element)
+                    .map_err(error)?,
+                Encoding::BinaryBigEndian => parser
+                    .read_big_endian_element(&mut cursor, element)
+                    .map_err(error)?,
+            };
             match element.name.as_str() {
                 "vertex" => mesh.positions.push(DVec3::from_array(record.xyz)),
                 "face" => {
