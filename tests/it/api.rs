@@ -241,6 +241,33 @@ async fn uploads_as_browsers_send_them_and_unsupported_kinds_say_how_to_convert(
     )
     .await;
 
+    // A zip of a glTF with its buffer, raw or in a form.
+    let zipped = crate::common::zip(&[
+        ("tetra/tetra.gltf", &fixture("gltf_external/tetra.gltf")),
+        ("tetra/tetra.bin", &fixture("gltf_external/tetra.bin")),
+    ]);
+    let raw = app
+        .add("id=zipped", "application/zip", zipped.clone())
+        .await;
+    assert_eq!(raw.status(), StatusCode::CREATED, "{}", raw.text());
+    assert_eq!(json(raw).await["format"], "gltf");
+    let form = Form::new().file("file", "tetra.zip", zipped);
+    let created = app
+        .post("/v1/models?id=zipped-form")
+        .multipart(form)
+        .send()
+        .await;
+    assert_eq!(created.status(), StatusCode::CREATED, "{}", created.text());
+    let bomb = crate::common::zip(&[("bomb.obj", &vec![0u8; 4 << 20])]);
+    let limited = TestApp::with_config(|c| c.limits.max_unpacked_bytes = 1 << 20);
+    let refused = limited.add("id=bomb", "application/zip", bomb).await;
+    assert!(
+        refused.text().contains("max_unpacked_bytes"),
+        "{}",
+        refused.text()
+    );
+    expect_error(refused, StatusCode::PAYLOAD_TOO_LARGE, "payload_too_large").await;
+
     let fbx = b"Kaydara FBX Binary  \x00\x1a\x00\x00\x00\x00".to_vec();
     for response in [
         app.add("id=chair", "application/octet-stream", fbx.clone())

@@ -233,3 +233,16 @@ pub const TETRA_CORNERS: [[f32; 3]; 4] = [
     [0.0, 0.0, 1.0],
 ];
 pub const TETRA_TRIANGLES: [u32; 12] = [0, 2, 1, 0, 1, 3, 0, 3, 2, 1, 2, 3];
+
+/// A zip archive of `entries` (name, bytes), deflated: what an asset library's download holds.
+pub fn zip(entries: &[(&str, &[u8])]) -> Vec<u8> {
+    use std::io::Write;
+    let mut writer = zip::ZipWriter::new(std::io::Cursor::new(Vec::new()));
+    let options = zip::write::SimpleFileOptions::default()
+        .compression_method(zip::CompressionMethod::Deflated);
+    for (name, bytes) in entries {
+        writer.start_file(*name, options).unwrap();
+        writer.write_all(bytes).unwrap();
+    }
+    writer.finish().unwrap().into_inner()
+}

@@ -967,6 +967,7 @@ fn configured_limits_apply() {
     let limits = Limits {
         max_input_vertices: 7,
         max_input_triangles: 100,
+        ..Limits::default()
     };
     for (bytes, format) in [
         (cube_obj().into_bytes(), Format::Obj),
@@ -989,6 +990,7 @@ fn configured_limits_apply() {
     let limits = Limits {
         max_input_vertices: 100,
         max_input_triangles: 11,
+        ..Limits::default()
     };
     for (bytes, format) in [
         (cube_obj().into_bytes(), Format::Obj),
@@ -1004,6 +1006,7 @@ fn configured_limits_apply() {
     let limits = Limits {
         max_input_vertices: 100,
         max_input_triangles: 3,
+        ..Limits::default()
     };
     for (bytes, format) in [
         (tetra_glb(), Format::Glb),
@@ -1139,6 +1142,90 @@ fn unsupported_files_name_their_kind_and_a_conversion() {
     }
     assert!(salient_core::mesh::unsupported(b"solid cube\nfacet", None).is_none());
     assert!(salient_core::mesh::unsupported(b"v 0 0 0\n", Some("cube.obj")).is_none());
+}
+
+/// A zip of a `.gltf` in a folder with its buffer (and an archiver's clutter), or of one mesh
+/// file, loads as its mesh; what is not one mesh, or is over the limits, is refused before
+/// anything is inflated.
+#[test]
+fn zip_archives_of_one_mesh() {
+    let read = |name: &str| std::fs::read(fixture(name)).unwrap();
+    let (gltf, bin) = (
+        read("gltf_external/tetra.gltf"),
+        read("gltf_external/tetra.bin"),
+    );
+    let dir = tempfile::tempdir().unwrap();
+    let write = |name: &str, bytes: Vec<u8>| {
+        let path = dir.path().join(name);
+        std::fs::write(&path, bytes).unwrap();
+        path
+    };
+    let tetra = common::zip(&[
+        ("tetra/", b""),
+        ("tetra/tetra.gltf", &gltf),
+        ("tetra/tetra.bin", &bin),
+        ("__MACOSX/tetra/._tetra.gltf", b"metadata"),
+    ]);
+    assert_tetra(&load_path(&write("tetra.zip", tetra.clone()), &Limits::default()).unwrap());
+    // Named by its content alone.
+    assert_tetra(&load_path(&write("download", tetra), &Limits::default()).unwrap());
+    let cube = common::zip(&[("cube.obj", cube_obj().as_bytes())]);
+    assert_cube(&load_path(&write("cube.zip", cube), &Limits::default()).unwrap());
+
+    let archive_error = |bytes: Vec<u8>, limits: Limits| {
+        salient_core::mesh::load::archive::unpack(&bytes, &limits).unwrap_err()
+    };
+    let two = common::zip(&[("a.obj", cube_obj().as_bytes()), ("b.stl", b"solid")]);
+    match archive_error(two, Limits::default()) {
+        Error::Archive(message) => assert!(message.contains("a.obj, b.stl"), "{message}"),
+        other => panic!("{other:?}"),
+    }
+    let fbx = common::zip(&[("chair.fbx", b"Kaydara FBX Binary  \x00")]);
+    assert!(matches!(
+        archive_error(fbx, Limits::default()),
+        Error::Unsupported { .. }
+    ));
+    assert!(matches!(
+        archive_error(b"PK\x03\x04 not a zip".to_vec(), Limits::default()),
+        Error::Archive(_)
+    ));
+    // A bomb: 8 MB of zeros deflate to a few KB; refused by what it declares.
+    let zeros = vec![0u8; 8 << 20];
+    let bomb = common::zip(&[("bomb.obj", &zeros)]);
+    assert!(bomb.len() < 64 << 10);
+    let limits = Limits {
+        max_unpacked_bytes: 1 << 20,
+        ..Limits::default()
+    };
+    assert!(matches!(
+        archive_error(bomb.clone(), limits),
+        Error::TooLarge {
+            what: "bytes unpacked",
+            ..
+        }
+    ));
+    // The same bomb declaring 10 bytes: it stops at 11 and is refused.
+    let mut lying = bomb;
+    for (signature, offset) in [(&b"PK\x03\x04"[..], 22), (&b"PK\x01\x02"[..], 24)] {
+        let at = lying.windows(4).position(|w| w == signature).unwrap() + offset;
+        lying[at..at + 4].copy_from_slice(&10u32.to_le_bytes());
+    }
+    assert!(matches!(
+        archive_error(lying, Limits::default()),
+        Error::Archive(_)
+    ));
+    let many = common::zip(&[("a.obj", b"v 0 0 0"), ("b.txt", b""), ("c.txt", b"")]);
+    let limits = Limits {
+        max_archive_entries: 2,
+        ..Limits::default()
+    };
+    assert!(matches!(
+        archive_error(many, limits),
+        Error::TooLarge {
+            what: "archive entries",
+            ..
+        }
+    ));
 }
 
 // ---------------------------------------------------------------------------------------

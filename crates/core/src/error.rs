@@ -21,6 +21,10 @@ pub enum Error {
         conversion: &'static str,
     },
 
+    /// A zip upload that cannot be used: not a zip, or not one mesh with its resources.
+    #[error("unusable zip archive: {0}")]
+    Archive(String),
+
     /// The file could not be read from disk.
     #[error("cannot read {path}: {source}")]
     Io {

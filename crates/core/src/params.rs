@@ -297,6 +297,11 @@ pub struct Limits {
     pub max_input_vertices: usize,
     /// Largest number of triangles (after triangulating polygons).
     pub max_input_triangles: usize,
+    /// Largest number of entries a zip upload may hold.
+    pub max_archive_entries: usize,
+    /// Largest total size of the entries a zip upload unpacks to, in bytes: checked against
+    /// what the archive declares before anything is inflated (a zip bomb is refused).
+    pub max_unpacked_bytes: usize,
 }
 
 impl Default for Limits {
@@ -304,6 +309,8 @@ impl Default for Limits {
         Self {
             max_input_vertices: 5_000_000,
             max_input_triangles: 10_000_000,
+            max_archive_entries: 10_000,
+            max_unpacked_bytes: 1 << 30,
         }
     }
 }
@@ -315,6 +322,8 @@ impl Limits {
         Self {
             max_input_vertices: usize::MAX,
             max_input_triangles: usize::MAX,
+            max_archive_entries: usize::MAX,
+            max_unpacked_bytes: usize::MAX,
         }
     }
 }

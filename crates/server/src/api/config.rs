@@ -92,6 +92,8 @@ impl Default for Config {
             limits: Limits {
                 max_input_vertices: 2_000_000,
                 max_input_triangles: 4_000_000,
+                max_archive_entries: 1000,
+                max_unpacked_bytes: 256 << 20,
             },
             params: Params::default(),
             keys_file: None,

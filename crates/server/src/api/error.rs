@@ -179,7 +179,8 @@ impl From<salient_core::Error> for AppError {
             E::Parse { .. }
             | E::IndexOutOfRange { .. }
             | E::NonFinite { .. }
-            | E::MissingResource { .. } => AppError::bad_request("bad_mesh", e.to_string()),
+            | E::MissingResource { .. }
+            | E::Archive(_) => AppError::bad_request("bad_mesh", e.to_string()),
             E::InvalidParameter { .. } => AppError::bad_request("invalid_parameter", e.to_string()),
             E::Io { .. }
             | E::Labels { .. }
@@ -213,6 +214,8 @@ fn limit_of(what: &str) -> &'static str {
         "triangles" | "faces" => {
             "the server's `limits.max_input_triangles` (--max-triangles, SALIENT_MAX_TRIANGLES)"
         }
+        "archive entries" => "the server's `limits.max_archive_entries`",
+        "bytes unpacked" => "the server's `limits.max_unpacked_bytes`",
         _ => "the server's `limits`",
     }
 }

@@ -10,8 +10,11 @@ use axum::http::header::CONTENT_TYPE;
 use serde::Deserialize;
 
 use super::error::AppError;
+use super::AppState;
 use crate::model::{Fields, ModelId, Upload};
+use salient_core::mesh::load::archive;
 use salient_core::mesh::{self, Format};
+use salient_core::Limits;
 
 /// Descriptive fields of a model, from the query string or multipart fields.
 #[derive(Debug, Clone, Default, Deserialize, utoipa::IntoParams)]
@@ -101,10 +104,43 @@ fn format_sniffed(body: &[u8]) -> Result<Format, AppError> {
     })
 }
 
-impl<S: Send + Sync> FromRequest<S> for MeshUpload {
+/// Whether an upload is a zip archive of a mesh: named so (`format=zip`, a `.zip` file name, a
+/// zip media type), or nothing names it and its content is one (and not a 3D application's
+/// own zipped format, [`mesh::unsupported`]).
+fn is_archive(named: Option<&str>, media_type: &str, body: &[u8]) -> bool {
+    let named = named.map(|n| n.rsplit('.').next().unwrap_or(n).to_ascii_lowercase());
+    match named.as_deref() {
+        Some("zip") => true,
+        Some(_) => false,
+        None => {
+            matches!(
+                media_type,
+                "application/zip" | "application/x-zip-compressed"
+            ) || (archive::is_zip(body) && mesh::unsupported(body, None).is_none())
+        }
+    }
+}
+
+/// The mesh and resources of a zip archive ([`archive::unpack`]), as an upload.
+fn unpacked(body: &[u8], limits: &Limits) -> Result<Upload, AppError> {
+    let unpacked = archive::unpack(body, limits)?;
+    let resources = unpacked
+        .resources
+        .into_iter()
+        .map(|(name, bytes)| (name, Bytes::from(bytes)))
+        .collect();
+    Ok(Upload::new(
+        unpacked.format,
+        Bytes::from(unpacked.mesh),
+        resources,
+    ))
+}
+
+impl FromRequest<AppState> for MeshUpload {
     type Rejection = AppError;
 
-    async fn from_request(request: Request, state: &S) -> Result<Self, AppError> {
+    async fn from_request(request: Request, state: &AppState) -> Result<Self, AppError> {
+        let limits = state.config.limits;
         let content_type = request
             .headers()
             .get(CONTENT_TYPE)
@@ -118,7 +154,7 @@ impl<S: Send + Sync> FromRequest<S> for MeshUpload {
             let multipart = Multipart::from_request(request, state)
                 .await
                 .map_err(|r| AppError::bad_request("invalid_multipart", r.body_text()))?;
-            return from_multipart(multipart, query).await;
+            return from_multipart(multipart, query, &limits).await;
         }
         let body = Bytes::from_request(request, state).await?;
         if body.is_empty() {
@@ -133,6 +169,18 @@ impl<S: Send + Sync> FromRequest<S> for MeshUpload {
             .unwrap_or("")
             .trim()
             .to_ascii_lowercase();
+        let fields = ModelFields {
+            format: None,
+            ..query.clone()
+        };
+        if Format::from_content_type(&content_type).is_none()
+            && is_archive(query.format.as_deref(), &essence, &body)
+        {
+            return Ok(MeshUpload {
+                upload: unpacked(&body, &limits)?,
+                fields,
+            });
+        }
         let format = match (&query.format, Format::from_content_type(&content_type)) {
             (Some(name), _) => format_named(name, &body)?,
             (None, Some(format)) => format,
@@ -150,10 +198,7 @@ impl<S: Send + Sync> FromRequest<S> for MeshUpload {
         };
         Ok(MeshUpload {
             upload: Upload::new(format, body, BTreeMap::new()),
-            fields: ModelFields {
-                format: None,
-                ..query
-            },
+            fields,
         })
     }
 }
@@ -166,6 +211,7 @@ impl<S: Send + Sync> FromRequest<S> for MeshUpload {
 async fn from_multipart(
     mut multipart: Multipart,
     mut fields: ModelFields,
+    limits: &Limits,
 ) -> Result<MeshUpload, AppError> {
     // Every file, in order: (field name, file name, bytes).
     let mut files: Vec<(String, String, Bytes)> = Vec::new();
@@ -204,11 +250,25 @@ async fn from_multipart(
             )
         })?;
     let (_, file_name, mesh) = files.remove(chosen);
+    let format_field = fields.format.take();
+    // The file name counts when it names a mesh or a zip, not when it is a browser's `blob`.
+    let named = format_field.as_deref().or_else(|| {
+        Path::new(&file_name)
+            .extension()
+            .and_then(|e| e.to_str())
+            .filter(|e| e.eq_ignore_ascii_case("zip") || Format::from_extension(e).is_some())
+    });
+    if is_archive(named, "", &mesh) {
+        return Ok(MeshUpload {
+            upload: unpacked(&mesh, limits)?,
+            fields,
+        });
+    }
     let resources: BTreeMap<String, Bytes> = files
         .into_iter()
         .map(|(_, file_name, bytes)| (file_name, bytes))
         .collect();
-    let format = match fields.format.take() {
+    let format = match format_field {
         Some(name) => format_named(&name, &mesh)?,
         None if named_mesh(&file_name) => format_named(&file_name, &mesh)?,
         None => match mesh::unsupported(&mesh, Some(&file_name)) {

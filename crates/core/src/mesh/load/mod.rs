@@ -6,6 +6,7 @@
 //! Input is untrusted (uploads): loaders check declared counts against the limits and against
 //! the byte length before allocating, and malformed input is a typed [`Error`], never a panic.
 
+pub mod archive;
 mod gltf;
 mod obj;
 mod off;
@@ -221,6 +222,10 @@ pub fn load_path(path: &Path, limits: &Limits) -> Result<RawMesh> {
         Some(format) => format,
         None => match unsupported(&bytes, name) {
             Some(error) => return Err(error),
+            None if archive::is_zip(&bytes) => {
+                let unpacked = archive::unpack(&bytes, limits)?;
+                return load_bytes(&unpacked.mesh, unpacked.format, &unpacked.resources, limits);
+            }
             None => Format::sniff(&bytes)
                 .ok_or_else(|| Error::UnknownFormat(path.display().to_string()))?,
         },
