@@ -251,6 +251,11 @@ async fn uploads_as_browsers_send_them_and_unsupported_kinds_say_how_to_convert(
         .await;
     assert_eq!(raw.status(), StatusCode::CREATED, "{}", raw.text());
     assert_eq!(json(raw).await["format"], "gltf");
+    // `format` names the kind over the content type.
+    let named = app
+        .add("id=zipped-named&format=zip", "model/obj", zipped.clone())
+        .await;
+    assert_eq!(named.status(), StatusCode::CREATED, "{}", named.text());
     let form = Form::new().file("file", "tetra.zip", zipped);
     let created = app
         .post("/v1/models?id=zipped-form")

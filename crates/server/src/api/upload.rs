@@ -173,8 +173,10 @@ impl FromRequest<AppState> for MeshUpload {
             format: None,
             ..query.clone()
         };
-        if Format::from_content_type(&content_type).is_none()
-            && is_archive(query.format.as_deref(), &essence, &body)
+        // `format` names the kind over the content type.
+        let named = query.format.as_deref();
+        if (named.is_some() || Format::from_content_type(&content_type).is_none())
+            && is_archive(named, &essence, &body)
         {
             return Ok(MeshUpload {
                 upload: unpacked(&body, &limits)?,
