@@ -137,6 +137,22 @@ pub fn glb(json: &Value, bin: &[u8]) -> Vec<u8> {
     glb_from_text(&serde_json::to_vec(json).expect("JSON serialises"), bin)
 }
 
+/// A GLB container's JSON and BIN chunks (the BIN chunk empty if there is none), to edit a
+/// real file and write it again with [`glb`].
+pub fn split_glb_chunks(bytes: &[u8]) -> (Value, Vec<u8>) {
+    let word = |at: usize| u32::from_le_bytes(bytes[at..at + 4].try_into().unwrap()) as usize;
+    let json_len = word(12);
+    let json = serde_json::from_slice(&bytes[20..20 + json_len]).expect("a GLB's JSON chunk");
+    let bin = match bytes.get(20 + json_len..20 + json_len + 8) {
+        Some(header) if header.len() == 8 => {
+            let len = word(20 + json_len);
+            bytes[28 + json_len..28 + json_len + len].to_vec()
+        }
+        _ => Vec::new(),
+    };
+    (json, bin)
+}
+
 /// A GLB container around JSON text as it is (which need not be valid).
 pub fn glb_from_text(json: &[u8], bin: &[u8]) -> Vec<u8> {
     let mut json = json.to_vec();

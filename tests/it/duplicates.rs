@@ -306,3 +306,42 @@ async fn pages_of_groups_follow_their_first_ids() {
     assert_eq!(second["groups"][0]["ids"], serde_json::json!(["b1", "b2"]));
     assert!(second["next"].is_null());
 }
+
+/// Compressed copies of a stored model, as web tools write them (gltfpack, gltf-transform:
+/// `tests/fixtures/web/make.sh`), upload over HTTP and are found as that model.
+#[tokio::test]
+async fn compressed_gltf_copies_are_found_as_their_original() {
+    let app = TestApp::new();
+    let response = app
+        .add("id=horse", "model/obj", fixture("capod_horse_m155.obj"))
+        .await;
+    assert_eq!(response.status(), StatusCode::CREATED);
+    for name in [
+        "horse_meshopt.glb",
+        "horse_meshopt_khr.glb",
+        "horse_meshopt_fallback.glb",
+        "horse_gt_meshopt.glb",
+        "horse_draco.glb",
+        "horse_draco_optional.glb",
+    ] {
+        let response = app
+            .post("/v1/duplicates/check")
+            .header("content-type", "model/gltf-binary")
+            .body(fixture(&format!("web/{name}")))
+            .send()
+            .await;
+        assert_eq!(
+            response.status(),
+            StatusCode::OK,
+            "{name}: {}",
+            response.text()
+        );
+        let matches = json(response).await["matches"].clone();
+        assert_eq!(matches[0]["id"], "horse", "{name}: {matches}");
+        let evidence = matches[0]["evidence"].as_str().unwrap();
+        assert!(
+            ["identical_geometry", "same_shape"].contains(&evidence),
+            "{name}: {evidence}"
+        );
+    }
+}

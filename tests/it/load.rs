@@ -1092,17 +1092,10 @@ fn unsupported_files_name_their_kind_and_a_conversion() {
     };
     unsupported(
         load(
-            &with_required(json!(["KHR_draco_mesh_compression"])),
+            &with_required(json!(["EXT_some_future_geometry"])),
             Format::Glb,
         ),
-        "KHR_draco_mesh_compression",
-    );
-    unsupported(
-        load(
-            &with_required(json!(["EXT_meshopt_compression"])),
-            Format::Glb,
-        ),
-        "EXT_meshopt_compression",
+        "EXT_some_future_geometry",
     );
     let harmless = load(
         &with_required(json!(["KHR_techniques_webgl", "KHR_materials_unlit"])),
@@ -1279,7 +1272,18 @@ fn samples() -> Vec<(Format, Vec<u8>)> {
         (Format::Stl, tetra_stl_ascii(" t").into_bytes()),
         (Format::Stl, tetra_stl_binary(b"solid")),
     ]
+    .into_iter()
+    .chain(COMPRESSED.map(|name| (Format::Glb, std::fs::read(fixture(name)).unwrap())))
+    .collect()
 }
+
+/// Compressed glTF fixtures, fuzzed as files and in their binary chunk alone.
+const COMPRESSED: [&str; 4] = [
+    "web/horse_meshopt.glb",
+    "web/horse_meshopt_khr.glb",
+    "web/horse_draco.glb",
+    "web/horse_instanced.glb",
+];
 
 fn mutate(rng: &mut ChaCha8Rng, input: &[u8]) -> Vec<u8> {
     const NUMBERS: [&[u8]; 8] = [
@@ -1365,6 +1369,16 @@ fn fuzz_never_panics() {
         let json = mutate(&mut rng, &text);
         cases.push((Format::Glb, common::glb_from_text(&json, &bin)));
     }
+    // The compressed streams mutated inside their well-formed containers, to reach the
+    // meshopt and Draco decoders.
+    for name in COMPRESSED {
+        let (doc, bin) = common::split_glb_chunks(&std::fs::read(fixture(name)).unwrap());
+        for _ in 0..per_sample {
+            let mut bin = mutate(&mut rng, &bin);
+            bin.resize(bin.len().max(8), 0);
+            cases.push((Format::Glb, common::glb(&doc, &bin)));
+        }
+    }
 
     let mut panics = Vec::new();
     let mut loaded = 0;
@@ -1394,4 +1408,138 @@ fn fuzz_never_panics() {
         cases.len(),
         panics.first()
     );
+}
+
+// ---------------------------------------------------------------------------------------
+// glTF as web pipelines write it: fixtures made by gltfpack and gltf-transform
+// (`tests/fixtures/web/make.sh`)
+
+/// The axis-aligned bounding box of a mesh's positions.
+fn bounds(mesh: &RawMesh) -> (DVec3, DVec3) {
+    mesh.positions.iter().fold(
+        (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)),
+        |(lo, hi), &p| (lo.min(p), hi.max(p)),
+    )
+}
+
+/// Each compressed variant has its original's triangles, and its bounding box within the
+/// quantisation step (14 bits of the extent for gltfpack, 16 for gltf-transform, Draco's 14).
+#[test]
+fn compressed_gltf_matches_its_original() {
+    let web = |name: &str| load_path(&fixture(&format!("web/{name}")), &Limits::default());
+    let plain = web("horse_plain.glb").unwrap();
+    assert_eq!(plain.triangles.len(), 688);
+    let (lo, hi) = bounds(&plain);
+    let step = (hi - lo).max_element() / f64::from(1 << 13);
+    for name in [
+        "horse_meshopt.glb",
+        "horse_meshopt_khr.glb",
+        "horse_meshopt_fallback.glb",
+        "horse_gt_meshopt.glb",
+        "horse_draco.glb",
+        "horse_draco_optional.glb",
+    ] {
+        let mesh = web(name).unwrap_or_else(|e| panic!("{name}: {e}"));
+        assert_eq!(mesh.triangles.len(), plain.triangles.len(), "{name}");
+        let (l, h) = bounds(&mesh);
+        assert!(
+            (l - lo).abs().max_element() <= step && (h - hi).abs().max_element() <= step,
+            "{name}: {l}..{h} against {lo}..{hi}"
+        );
+        assert!(
+            (signed_volume(&mesh) / signed_volume(&plain) - 1.0).abs() < 0.01,
+            "{name}: the triangles keep their winding"
+        );
+    }
+}
+
+/// `EXT_mesh_gpu_instancing`: each instance is a placed copy, as the nodes it replaced.
+#[test]
+fn gpu_instances_are_placed_copies() {
+    let web = |name: &str| load_path(&fixture(&format!("web/{name}")), &Limits::default()).unwrap();
+    let nodes = web("horse_three.glb");
+    let instanced = web("horse_instanced.glb");
+    assert_eq!(nodes.triangles.len(), 3 * 688);
+    assert_eq!(instanced.triangles.len(), nodes.triangles.len());
+    let (lo, hi) = bounds(&nodes);
+    let (l, h) = bounds(&instanced);
+    let step = (hi - lo).max_element() / f64::from(1 << 12);
+    assert!(
+        (l - lo).abs().max_element() <= step && (h - hi).abs().max_element() <= step,
+        "{l}..{h} against {lo}..{hi}"
+    );
+    assert!((signed_volume(&instanced) / signed_volume(&nodes) - 1.0).abs() < 0.01);
+}
+
+/// Hostile compressed files: counts a stream declares are checked against the limits before
+/// anything is allocated, and parameters the decoders would assert on are refused.
+#[test]
+fn hostile_compressed_gltf_is_refused() {
+    let bytes = std::fs::read(fixture("web/horse_meshopt.glb")).unwrap();
+    let edit = |change: &dyn Fn(&mut serde_json::Value)| {
+        let (mut doc, bin) = common::split_glb_chunks(&bytes);
+        change(&mut doc);
+        common::glb(&doc, &bin)
+    };
+    let meshopt = |view: usize| format!("/bufferViews/{view}/extensions/EXT_meshopt_compression");
+    // A view that claims 2^40 vertices of 256 bytes.
+    let huge = edit(&|doc| {
+        let ext = doc.pointer_mut(&meshopt(0)).unwrap();
+        ext["count"] = json!(1u64 << 40);
+        ext["byteStride"] = json!(256);
+    });
+    match load(&huge, Format::Glb) {
+        Err(Error::Parse { message, .. }) => assert!(message.contains("limits"), "{message}"),
+        other => panic!("{other:?}"),
+    }
+    // Strides and counts meshoptimizer would abort on.
+    for (field, value) in [
+        ("byteStride", json!(6)),
+        ("byteStride", json!(0)),
+        ("mode", json!("TRIANGLES")),
+    ] {
+        let bad = edit(&|doc| {
+            doc.pointer_mut(&meshopt(0)).unwrap()[field] = value.clone();
+        });
+        assert!(
+            matches!(load(&bad, Format::Glb), Err(Error::Parse { .. })),
+            "{field}={value}"
+        );
+    }
+    let bad_filter = edit(&|doc| {
+        doc.pointer_mut(&meshopt(1)).unwrap()["filter"] = json!("OCTAHEDRAL");
+    });
+    assert!(matches!(
+        load(&bad_filter, Format::Glb),
+        Err(Error::Parse { .. })
+    ));
+    // A compressed stream cut short, and one out of its buffer.
+    let cut = edit(&|doc| {
+        doc.pointer_mut(&meshopt(0)).unwrap()["byteLength"] = json!(100);
+    });
+    assert!(matches!(load(&cut, Format::Glb), Err(Error::Parse { .. })));
+    let outside = edit(&|doc| {
+        doc.pointer_mut(&meshopt(0)).unwrap()["byteOffset"] = json!(1u64 << 32);
+    });
+    assert!(matches!(
+        load(&outside, Format::Glb),
+        Err(Error::Parse { .. })
+    ));
+
+    // Draco: a triangle limit below the stream's is refused as too large, a corrupt stream
+    // as malformed.
+    let draco = std::fs::read(fixture("web/horse_draco.glb")).unwrap();
+    let limits = Limits {
+        max_input_triangles: 100,
+        ..Limits::default()
+    };
+    assert!(matches!(
+        load_bytes(&draco, Format::Glb, &NoResources, &limits),
+        Err(Error::DecodesTooLarge(_))
+    ));
+    let (doc, mut bin) = common::split_glb_chunks(&draco);
+    for byte in bin.iter_mut().skip(40).step_by(7) {
+        *byte ^= 0x5A;
+    }
+    assert!(load(&common::glb(&doc, &bin), Format::Glb).is_err());
 }

@@ -100,6 +100,11 @@ pub enum Error {
         limit: usize,
     },
 
+    /// A compressed stream (Draco) decodes to more than the limits allow; the decoder's
+    /// message says what and how much.
+    #[error("the compressed mesh decodes to more than the limits allow ({0})")]
+    DecodesTooLarge(String),
+
     /// A labelled collection's labels cannot be used (SPEC §7): fix `labels.tsv` or lay the
     /// collection out as `CLASS/MODEL.ext`.
     #[error("bad labels in {path}: {message}")]

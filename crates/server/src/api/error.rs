@@ -171,6 +171,11 @@ impl From<salient_core::Error> for AppError {
             E::TooLarge { what, .. } => {
                 AppError::PayloadTooLarge(format!("{e}: {}", limit_of(what)))
             }
+            E::DecodesTooLarge(_) => AppError::PayloadTooLarge(format!(
+                "{e}: {} and {}",
+                limit_of("vertices"),
+                limit_of("triangles")
+            )),
             E::NoTriangles
             | E::OnlyDegenerate { .. }
             | E::TooFewVertices { .. }

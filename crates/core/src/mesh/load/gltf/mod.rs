@@ -7,12 +7,20 @@
 //! orientation. Other primitive modes are ignored. Buffers come from the GLB binary chunk,
 //! from `data:` URIs, or from [`Resources`] (sibling files, upload parts).
 //!
+//! Files as web pipelines write them load too: meshopt-compressed buffer views
+//! ([`meshopt`]), Draco-compressed primitives ([`draco`]), quantized positions
+//! (`KHR_mesh_quantization`) and GPU instancing (`EXT_mesh_gpu_instancing`: each instance a
+//! placed copy of its node's mesh).
+//!
 //! `gltf` splits GLB files and deserialises the JSON; the JSON tree is then read with
 //! bounds-checked lookups. The crate's validation and accessor readers are not safe on hostile
 //! input, so neither is used: validation indexes `accessors` with an unchecked `POSITION`
 //! index (a panic on an out-of-range index), and the accessor iterators compute `count - 1` and
 //! `offset + stride × (count - 1)` unchecked and `debug_assert` the element type. Accessors
 //! are read here instead, every range checked first.
+
+mod draco;
+mod meshopt;
 
 use std::borrow::Cow;
 
@@ -30,11 +38,15 @@ use crate::error::{Error, Result};
 use crate::mesh::RawMesh;
 use crate::params::Limits;
 
-/// Required extensions that do not change geometry, or whose geometry this loader reads
-/// (`KHR_mesh_quantization`: integer positions). Any other required extension is refused, as
-/// the glTF specification demands (e.g. Draco or meshopt compression), as unsupported.
-const HARMLESS_EXTENSIONS: [&str; 8] = [
+/// Required extensions whose geometry this loader reads, or that do not change geometry
+/// (materials, textures, lights). Any other required extension is refused as unsupported, as
+/// the glTF specification demands.
+const READABLE_EXTENSIONS: [&str; 12] = [
     "KHR_mesh_quantization",
+    "EXT_meshopt_compression",
+    "KHR_meshopt_compression",
+    draco::NAME,
+    INSTANCING,
     "KHR_materials_",
     "KHR_texture_",
     "EXT_texture_",
@@ -70,13 +82,13 @@ pub(super) fn load(
         })?;
     let root = document.into_json();
     if let Some(name) = root.extensions_required.iter().find(|name| {
-        !HARMLESS_EXTENSIONS
+        !READABLE_EXTENSIONS
             .iter()
             .any(|prefix| name.starts_with(prefix))
     }) {
         return Err(Error::Unsupported {
             feature: format!("the required glTF extension {name}"),
-            conversion: "save the file again without it, e.g. `npx @gltf-transform/cli copy` to a file without compression, or Blender's glTF export with compression and GPU instancing off",
+            conversion: "save the file again without it, e.g. with Blender's glTF 2.0 export, or `npx @gltf-transform/cli` commands that remove the extension",
         });
     }
 
@@ -84,16 +96,34 @@ pub(super) fn load(
         root: &root,
         format,
         resources,
+        limits,
         blob,
         buffers: vec![None; root.buffers.len()],
+        decoded: vec![None; root.buffer_views.len()],
     };
     let mut mesh = RawMesh::default();
-    for (mesh_index, world) in instances(&root, format)? {
-        for primitive in &root.meshes[mesh_index].primitives {
-            reader.append_primitive(&mut mesh, primitive, world, limits)?;
+    for placed in placements(&root, format)? {
+        let primitives = &root.meshes[placed.mesh].primitives;
+        for world in reader.instances(&root.nodes[placed.node], placed.world)? {
+            for primitive in primitives {
+                reader.append_primitive(&mut mesh, primitive, world)?;
+            }
         }
     }
     Ok(mesh)
+}
+
+/// The extension that places many copies of a node's mesh.
+const INSTANCING: &str = "EXT_mesh_gpu_instancing";
+
+/// The most bytes one decoded stream (a meshopt view, a Draco primitive) may take: 64 per
+/// vertex the limits allow (positions and the attributes stored beside them), or 12 per
+/// triangle (32-bit indices), whichever is more.
+fn max_decoded_bytes(limits: &Limits) -> usize {
+    limits
+        .max_input_vertices
+        .saturating_mul(64)
+        .max(limits.max_input_triangles.saturating_mul(12))
 }
 
 /// Whether a file `gltf` cannot read is glTF 1.0: a GLB of version 1, or JSON whose
@@ -126,10 +156,17 @@ fn check_glb_header(bytes: &[u8], format: Format) -> Result<()> {
     }
 }
 
-/// Every mesh placed in the scene, with its world matrix: the default scene, else the first,
-/// else all nodes that are no node's child. Each node may be reached once: glTF node trees are
-/// disjoint, and a cycle or shared children would otherwise loop or multiply the work.
-fn instances(root: &Root, format: Format) -> Result<Vec<(usize, DMat4)>> {
+/// A node of the scene that holds a mesh, and its world matrix.
+struct Placement {
+    node: usize,
+    mesh: usize,
+    world: DMat4,
+}
+
+/// Every mesh placed in the scene: the default scene, else the first, else all nodes that are
+/// no node's child. Each node may be reached once: glTF node trees are disjoint, and a cycle or
+/// shared children would otherwise loop or multiply the work.
+fn placements(root: &Root, format: Format) -> Result<Vec<Placement>> {
     let error = |message: String| parse_error(format, message);
     let scene = match root.scene {
         Some(index) => Some(root.get(index).ok_or_else(|| {
@@ -175,7 +212,11 @@ fn instances(root: &Root, format: Format) -> Result<Vec<(usize, DMat4)>> {
                     mesh.value()
                 )));
             }
-            found.push((mesh.value(), world));
+            found.push(Placement {
+                node: index,
+                mesh: mesh.value(),
+                world,
+            });
         }
         for child in node.children.iter().flatten().rev() {
             stack.push((child.value(), world));
@@ -197,19 +238,103 @@ fn local_matrix(node: &json::Node) -> DMat4 {
     DMat4::from_scale_rotation_translation(scale, rotation, translation)
 }
 
-/// Reads accessors, resolving each buffer once, on first use.
+/// Reads accessors, resolving each buffer and decoding each compressed view once, on first
+/// use.
 struct Reader<'a> {
     root: &'a Root,
     format: Format,
     resources: &'a dyn Resources,
+    limits: &'a Limits,
     /// The GLB binary chunk, until buffer 0 takes it.
     blob: Option<Vec<u8>>,
     buffers: Vec<Option<Vec<u8>>>,
+    /// Each meshopt-compressed buffer view's decoded bytes.
+    decoded: Vec<Option<Vec<u8>>>,
+}
+
+/// A primitive's geometry in its mesh's coordinates: positions, and corners (indices into
+/// them) read in `mode`.
+struct Geometry {
+    positions: Vec<DVec3>,
+    corners: Vec<u32>,
+    mode: Mode,
+}
+
+impl Geometry {
+    fn triangle_count(&self) -> usize {
+        match self.mode {
+            Mode::Triangles => self.corners.len() / 3,
+            _ => self.corners.len().saturating_sub(2),
+        }
+    }
+
+    /// The corners of triangle `face`, in the winding of its primitive mode.
+    fn triangle(&self, face: usize) -> [u32; 3] {
+        let c = &self.corners;
+        match self.mode {
+            Mode::Triangles => [c[3 * face], c[3 * face + 1], c[3 * face + 2]],
+            Mode::TriangleStrip if face.is_multiple_of(2) => [c[face], c[face + 1], c[face + 2]],
+            Mode::TriangleStrip => [c[face], c[face + 2], c[face + 1]],
+            _ => [c[face + 1], c[face + 2], c[0]],
+        }
+    }
 }
 
 impl<'a> Reader<'a> {
     fn error(&self, message: impl Into<String>) -> Error {
         parse_error(self.format, message)
+    }
+
+    /// The world matrices of a node's copies: the node's own, or with
+    /// `EXT_mesh_gpu_instancing` one per instance, its TRS composed after the node's.
+    fn instances(&mut self, node: &json::Node, world: DMat4) -> Result<Vec<DMat4>> {
+        let Some(value) = node
+            .extensions
+            .as_ref()
+            .and_then(|e| e.others.get(INSTANCING))
+        else {
+            return Ok(vec![world]);
+        };
+        let attributes: std::collections::BTreeMap<String, Index<json::Accessor>> =
+            serde_json::from_value(value["attributes"].clone())
+                .map_err(|e| self.error(format!("invalid {INSTANCING} attributes: {e}")))?;
+        let mut read = |name: &str, width: usize| -> Result<Option<Vec<DVec4>>> {
+            attributes
+                .get(name)
+                .map(|&index| self.vectors(self.accessor(index)?, width, name))
+                .transpose()
+        };
+        let translations = read("TRANSLATION", 3)?;
+        let rotations = read("ROTATION", 4)?;
+        let scales = read("SCALE", 3)?;
+        let counts: Vec<usize> = [&translations, &rotations, &scales]
+            .into_iter()
+            .flatten()
+            .map(Vec::len)
+            .collect();
+        let Some(&count) = counts.first() else {
+            return Ok(vec![world]);
+        };
+        if counts.iter().any(|&c| c != count) {
+            return Err(self.error(format!(
+                "the {INSTANCING} attributes of a node have different counts {counts:?}"
+            )));
+        }
+        Ok((0..count)
+            .map(|i| {
+                let at =
+                    |v: &Option<Vec<DVec4>>, default: DVec4| v.as_ref().map_or(default, |v| v[i]);
+                let rotation = at(&rotations, DVec4::W)
+                    .try_normalize()
+                    .map_or(DQuat::IDENTITY, DQuat::from_vec4);
+                world
+                    * DMat4::from_scale_rotation_translation(
+                        at(&scales, DVec4::ONE).truncate(),
+                        rotation,
+                        at(&translations, DVec4::ZERO).truncate(),
+                    )
+            })
+            .collect())
     }
 
     /// Appends one primitive, transformed by `world`, if it is made of triangles.
@@ -218,7 +343,6 @@ impl<'a> Reader<'a> {
         mesh: &mut RawMesh,
         primitive: &Primitive,
         world: DMat4,
-        limits: &Limits,
     ) -> Result<()> {
         let mode = match primitive.mode {
             Checked::Valid(mode @ (Mode::Triangles | Mode::TriangleStrip | Mode::TriangleFan)) => {
@@ -226,53 +350,86 @@ impl<'a> Reader<'a> {
             }
             _ => return Ok(()),
         };
+        let geometry = match draco::DracoPrimitive::of(primitive.extensions.as_ref()) {
+            Some(draco) => self.draco(&draco.map_err(|e| self.error(e))?, mesh)?,
+            None => self.accessors(primitive, mode, mesh)?,
+        };
+        let triangle_count = geometry.triangle_count();
+        check_limit(
+            "triangles",
+            mesh.triangles.len().saturating_add(triangle_count),
+            self.limits.max_input_triangles,
+        )?;
+        let offset = vertex_id(mesh.positions.len())?;
+        // Every index of this primitive, offset, must fit in a u32 too.
+        vertex_id(mesh.positions.len() + geometry.positions.len())?;
+        let first_face = mesh.triangles.len();
+        let vertex_count = geometry.positions.len();
+        let corner = |c: u32, face: usize| {
+            if (c as usize) < vertex_count {
+                Ok(c + offset)
+            } else {
+                Err(Error::IndexOutOfRange {
+                    face: first_face + face,
+                    index: c.into(),
+                    vertex_count,
+                })
+            }
+        };
+        let flip = world.determinant() < 0.0;
+        for face in 0..triangle_count {
+            let [a, b, c] = geometry.triangle(face);
+            let [a, b, c] = [corner(a, face)?, corner(b, face)?, corner(c, face)?];
+            mesh.triangles
+                .push(if flip { [a, c, b] } else { [a, b, c] });
+        }
+        mesh.positions.extend(
+            geometry
+                .positions
+                .iter()
+                .map(|&p| world.transform_point3(p)),
+        );
+        Ok(())
+    }
+
+    /// A primitive's geometry from its accessors.
+    fn accessors(&mut self, primitive: &Primitive, mode: Mode, mesh: &RawMesh) -> Result<Geometry> {
         let position_accessor = primitive
             .attributes
             .iter()
             .find(|(semantic, _)| matches!(semantic, Checked::Valid(Semantic::Positions)))
             .map(|(_, &index)| self.accessor(index))
             .ok_or_else(|| self.error("a triangle primitive has no POSITION attribute"))??;
-        let position_type = match (position_accessor.type_, position_accessor.component_type) {
-            (Checked::Valid(Type::Vec3), Checked::Valid(GenericComponentType(t)))
-                if t != ComponentType::U32 =>
-            {
-                t
-            }
-            _ => return Err(self.error("POSITION must be a VEC3 of floats or small integers")),
-        };
+        if matches!(
+            position_accessor.component_type,
+            Checked::Valid(GenericComponentType(ComponentType::U32))
+        ) {
+            return Err(self.error("POSITION must be a VEC3 of floats or small integers"));
+        }
         let vertex_count = count(position_accessor);
         check_limit(
             "vertices",
             mesh.positions.len().saturating_add(vertex_count),
-            limits.max_input_vertices,
+            self.limits.max_input_vertices,
         )?;
         let index_accessor = primitive.indices.map(|i| self.accessor(i)).transpose()?;
         let corner_count = index_accessor.map_or(vertex_count, count);
-        let triangle_count = match mode {
-            Mode::Triangles if corner_count % 3 != 0 => {
-                return Err(self.error(format!(
-                    "a TRIANGLES primitive has {corner_count} corners, not a multiple of 3"
-                )))
-            }
-            Mode::Triangles => corner_count / 3,
-            _ => corner_count.saturating_sub(2),
-        };
+        if mode == Mode::Triangles && corner_count % 3 != 0 {
+            return Err(self.error(format!(
+                "a TRIANGLES primitive has {corner_count} corners, not a multiple of 3"
+            )));
+        }
         check_limit(
             "triangles",
-            mesh.triangles.len().saturating_add(triangle_count),
-            limits.max_input_triangles,
+            mesh.triangles.len().saturating_add(corner_count / 3),
+            self.limits.max_input_triangles,
         )?;
-
-        let normalized = position_accessor.normalized;
-        let size = component_size(position_type);
-        let positions = self.read(position_accessor, 3 * size, DVec3::ZERO, |b| {
-            DVec3::new(
-                component(b, position_type, normalized),
-                component(&b[size..], position_type, normalized),
-                component(&b[2 * size..], position_type, normalized),
-            )
-        })?;
-        let corners: Vec<u32> = match index_accessor {
+        let positions = self
+            .vectors(position_accessor, 3, "POSITION")?
+            .into_iter()
+            .map(DVec4::truncate)
+            .collect();
+        let corners = match index_accessor {
             Some(accessor) => {
                 let index_type = match (accessor.type_, accessor.component_type) {
                     (Checked::Valid(Type::Scalar), Checked::Valid(GenericComponentType(t)))
@@ -291,43 +448,70 @@ impl<'a> Reader<'a> {
             }
             None => (0..vertex_id(vertex_count)?).collect(),
         };
+        Ok(Geometry {
+            positions,
+            corners,
+            mode,
+        })
+    }
 
-        let offset = vertex_id(mesh.positions.len())?;
-        // Every index of this primitive, offset, must fit in a u32 too.
-        vertex_id(mesh.positions.len() + positions.len())?;
-        let first_face = mesh.triangles.len();
-        let corner = |c: u32, face: usize| {
-            if (c as usize) < positions.len() {
-                Ok(c + offset)
-            } else {
-                Err(Error::IndexOutOfRange {
-                    face: first_face + face,
-                    index: c.into(),
-                    vertex_count: positions.len(),
-                })
+    /// A Draco-compressed primitive's geometry (the accessors are placeholders).
+    fn draco(&mut self, draco: &draco::DracoPrimitive, mesh: &RawMesh) -> Result<Geometry> {
+        let view: Index<json::buffer::View> = Index::new(draco.buffer_view);
+        let length = self
+            .root
+            .get(view)
+            .ok_or_else(|| self.error(format!("buffer view {} does not exist", view.value())))?
+            .byte_length
+            .0;
+        let length = usize::try_from(length).unwrap_or(usize::MAX);
+        let max_faces = self
+            .limits
+            .max_input_triangles
+            .saturating_sub(mesh.triangles.len());
+        let max_bytes = max_decoded_bytes(self.limits);
+        let format = self.format;
+        let (stream, _) = self.view(view, 0, length, 1, true)?;
+        let geometry = draco.decode(format, stream, max_faces, max_bytes)?;
+        check_limit(
+            "vertices",
+            mesh.positions
+                .len()
+                .saturating_add(geometry.positions.len()),
+            self.limits.max_input_vertices,
+        )?;
+        Ok(geometry)
+    }
+
+    /// The elements of a `width`-component float (or normalised integer) accessor, padded
+    /// to 4 components with zeros.
+    fn vectors(
+        &mut self,
+        accessor: &json::Accessor,
+        width: usize,
+        name: &str,
+    ) -> Result<Vec<DVec4>> {
+        let component_type = match (accessor.type_, accessor.component_type) {
+            (Checked::Valid(t), Checked::Valid(GenericComponentType(c)))
+                if t.multiplicity() == width =>
+            {
+                c
+            }
+            _ => {
+                return Err(self.error(format!(
+                    "{name} must be a {width}-component vector accessor"
+                )))
             }
         };
-        let flip = world.determinant() < 0.0;
-        for face in 0..triangle_count {
-            let [a, b, c] = match mode {
-                Mode::Triangles => [
-                    corners[3 * face],
-                    corners[3 * face + 1],
-                    corners[3 * face + 2],
-                ],
-                Mode::TriangleStrip if face % 2 == 0 => {
-                    [corners[face], corners[face + 1], corners[face + 2]]
-                }
-                Mode::TriangleStrip => [corners[face], corners[face + 2], corners[face + 1]],
-                _ => [corners[face + 1], corners[face + 2], corners[0]],
-            };
-            let [a, b, c] = [corner(a, face)?, corner(b, face)?, corner(c, face)?];
-            mesh.triangles
-                .push(if flip { [a, c, b] } else { [a, b, c] });
-        }
-        mesh.positions
-            .extend(positions.iter().map(|&p| world.transform_point3(p)));
-        Ok(())
+        let normalized = accessor.normalized;
+        let size = component_size(component_type);
+        self.read(accessor, width * size, DVec4::ZERO, |b| {
+            let mut v = [0.0; 4];
+            for (k, slot) in v.iter_mut().take(width).enumerate() {
+                *slot = component(&b[k * size..], component_type, normalized);
+            }
+            DVec4::from_array(v)
+        })
     }
 
     fn accessor(&self, index: Index<json::Accessor>) -> Result<&'a json::Accessor> {
@@ -415,7 +599,7 @@ impl<'a> Reader<'a> {
         element_size: usize,
         packed: bool,
     ) -> Result<(&[u8], usize)> {
-        let root = self.root;
+        let root: &'a Root = self.root;
         let view = root
             .get(index)
             .ok_or_else(|| self.error(format!("buffer view {} does not exist", index.value())))?;
@@ -443,28 +627,62 @@ impl<'a> Reader<'a> {
                 index.value()
             )));
         }
-        let start = view.byte_offset.map_or(0, |o| o.0);
-        let buffer = view.buffer.value();
-        let declared = root
+        let data = self.view_bytes(index.value(), view)?;
+        // In range: offset + span <= view_length == data.len().
+        let from = offset as usize;
+        Ok((&data[from..from + span as usize], stride))
+    }
+
+    /// The `byteLength` bytes of buffer view `index`: from its buffer, or decoded from their
+    /// meshopt-compressed form (then the view's own buffer is a fallback, never read).
+    fn view_bytes(&mut self, index: usize, view: &'a json::buffer::View) -> Result<&[u8]> {
+        let length = view.byte_length.0;
+        let Some(compressed) = meshopt::Compressed::of(view.extensions.as_ref()) else {
+            let start = view.byte_offset.map_or(0, |o| o.0);
+            return self.buffer_range(view.buffer.value(), start, length);
+        };
+        if self.decoded[index].is_none() {
+            let compressed = compressed.map_err(|e| self.error(e))?;
+            let decoded_len = compressed
+                .decoded_len(max_decoded_bytes(self.limits))
+                .map_err(|e| self.error(e))?;
+            if (decoded_len as u64) < length {
+                return Err(self.error(format!(
+                    "buffer view {index} of {length} bytes decodes to {decoded_len} bytes"
+                )));
+            }
+            let encoded = self.buffer_range(
+                compressed.buffer,
+                compressed.byte_offset,
+                compressed.byte_length,
+            )?;
+            let bytes = compressed
+                .decode(encoded, decoded_len)
+                .map_err(|e| self.error(e))?;
+            self.decoded[index] = Some(bytes);
+        }
+        let bytes = self.decoded[index].as_deref().unwrap_or_default();
+        Ok(&bytes[..length as usize])
+    }
+
+    /// `length` bytes at `start` of buffer `index`, checked against the buffer's declared
+    /// length, and that against the bytes actually supplied.
+    fn buffer_range(&mut self, index: usize, start: u64, length: u64) -> Result<&[u8]> {
+        let declared = self
+            .root
             .buffers
-            .get(buffer)
-            .ok_or_else(|| self.error(format!("buffer {buffer} does not exist")))?
+            .get(index)
+            .ok_or_else(|| self.error(format!("buffer {index} does not exist")))?
             .byte_length
             .0;
-        if start
-            .checked_add(view_length)
-            .is_none_or(|end| end > declared)
-        {
+        if start.checked_add(length).is_none_or(|end| end > declared) {
             return Err(self.error(format!(
-                "buffer view {} ends beyond the {declared} bytes of buffer {buffer}",
-                index.value()
+                "{length} bytes at offset {start} end beyond the {declared} bytes of buffer {index}"
             )));
         }
-        let data = self.buffer(buffer)?;
-        // In range: offset + span <= view_length and start + view_length <= declared
-        // <= data.len() (checked when the buffer was resolved).
-        let from = (start + offset) as usize;
-        Ok((&data[from..from + span as usize], stride))
+        let data = self.buffer(index)?;
+        // In range: start + length <= declared <= data.len() (checked when resolved).
+        Ok(&data[start as usize..(start + length) as usize])
     }
 
     /// The bytes of buffer `index` (which exists), resolved on first use.
