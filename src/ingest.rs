@@ -8,7 +8,8 @@ use std::time::Duration;
 
 use serde::Deserialize;
 
-use salient_core::collection::find_meshes;
+use salient_core::collection::{find_meshes, is_mesh_file};
+use salient_core::mesh::load::archive;
 use salient_core::mesh::load::DirResources;
 use salient_core::mesh::{Format, Resources};
 use salient_core::{Error, Result};
@@ -25,7 +26,8 @@ pub struct Item {
     pub name: String,
     /// The first folder below the ingested one, with `class_from_folder`.
     pub class: Option<String>,
-    pub format: Format,
+    /// The file's format; `None` for a zip archive, unpacked when read ([`read_upload`]).
+    pub format: Option<Format>,
     /// Tags of this model alone (a manifest's), instead of the run's.
     pub tags: Option<Vec<String>>,
     /// The id and fields are the library's own (a manifest's): the model is compared with
@@ -68,12 +70,13 @@ pub fn plan_manifest(manifest: &Path) -> Result<Vec<Item>> {
             continue;
         }
         let entry: Entry = serde_json::from_str(line).map_err(|e| bad(n, e.to_string()))?;
-        let format = Format::from_path(&entry.path).ok_or_else(|| {
-            bad(
+        if !is_mesh_file(&entry.path) {
+            return Err(bad(
                 n,
                 format!("{} is not a known mesh format", entry.path.display()),
-            )
-        })?;
+            ));
+        }
+        let format = Format::from_path(&entry.path);
         let id = match entry.id {
             Some(id) => ModelId::parse(&id)
                 .map_err(|e| bad(n, e.to_string()))?
@@ -128,7 +131,7 @@ pub fn plan(dir: &Path, class_from_folder: bool) -> Result<Vec<Item>> {
         };
         items.push(Item {
             name: lossy(relative.file_stem()),
-            format: Format::from_path(&path).expect("find_meshes returns known formats"),
+            format: Format::from_path(&path),
             path,
             relative,
             id,
@@ -192,8 +195,21 @@ pub fn read_upload(item: &Item) -> Result<Upload> {
         path: item.path.clone(),
         source,
     })?;
+    let Some(format) = item.format else {
+        let unpacked = archive::unpack(&mesh, &salient_core::Limits::default())?;
+        let resources = unpacked
+            .resources
+            .into_iter()
+            .map(|(name, bytes)| (name, bytes.into()))
+            .collect();
+        return Ok(Upload::new(
+            unpacked.format,
+            unpacked.mesh.into(),
+            resources,
+        ));
+    };
     let mut resources = BTreeMap::new();
-    if item.format == Format::Gltf {
+    if format == Format::Gltf {
         let folder = DirResources(item.path.parent().unwrap_or(Path::new(".")).to_path_buf());
         for (uri, required) in gltf_references(&mesh)? {
             match folder.get(&uri) {
@@ -205,7 +221,7 @@ pub fn read_upload(item: &Item) -> Result<Upload> {
             }
         }
     }
-    Ok(Upload::new(item.format, mesh.into(), resources))
+    Ok(Upload::new(format, mesh.into(), resources))
 }
 
 /// The external files a glTF document references, percent-decoded, with whether the geometry
@@ -343,7 +359,7 @@ mod tests {
         assert_eq!(ids[2], "hand-181");
         assert!(ids[1].starts_with("a_b-x-") && ids[3].starts_with("hand-181-"));
         assert_eq!(ids.iter().collect::<HashSet<_>>().len(), ids.len());
-        assert_eq!(items[3].format, Format::Off);
+        assert_eq!(items[3].format, Some(Format::Off));
         assert!(plan(root, false).unwrap().iter().all(|i| i.class.is_none()));
         // The same folder plans the same ids.
         assert_eq!(plan(root, true).unwrap(), items);

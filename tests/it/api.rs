@@ -273,6 +273,30 @@ async fn uploads_as_browsers_send_them_and_unsupported_kinds_say_how_to_convert(
     );
     expect_error(refused, StatusCode::PAYLOAD_TOO_LARGE, "payload_too_large").await;
 
+    // 3MF by its media type, its name, or its content (not taken for a zip of a mesh).
+    let print = fixture("3mf/horse_production.3mf");
+    for (query, content_type) in [
+        ("id=print", "model/3mf"),
+        ("id=print-sniffed", "application/octet-stream"),
+        ("id=print-named&format=3mf", "application/octet-stream"),
+    ] {
+        let created = app.add(query, content_type, print.clone()).await;
+        assert_eq!(
+            created.status(),
+            StatusCode::CREATED,
+            "{query}: {}",
+            created.text()
+        );
+        assert_eq!(json(created).await["format"], "3mf");
+    }
+    let form = Form::new().file("file", "print.3mf", print.clone());
+    let created = app
+        .post("/v1/models?id=print-form")
+        .multipart(form)
+        .send()
+        .await;
+    assert_eq!(created.status(), StatusCode::CREATED, "{}", created.text());
+
     let fbx = b"Kaydara FBX Binary  \x00\x1a\x00\x00\x00\x00".to_vec();
     for response in [
         app.add("id=chair", "application/octet-stream", fbx.clone())

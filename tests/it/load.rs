@@ -1119,12 +1119,6 @@ fn unsupported_files_name_their_kind_and_a_conversion() {
         ("chair.bin", b"; FBX 7.4.0 project file\n".to_vec(), "FBX"),
         ("chair.blend", b"BLENDER-v402REND".to_vec(), "Blender"),
         ("chair.usdz", b"PK\x03\x04....chair.usdc".to_vec(), "USD"),
-        (
-            "print.3mf",
-            b"PK\x03\x04....3D/3dmodel.model".to_vec(),
-            "3MF",
-        ),
-        ("unnamed", b"PK\x03\x04....3D/3dmodel.model".to_vec(), "3MF"),
     ] {
         let path = dir.path().join(name);
         std::fs::write(&path, &bytes).unwrap();
@@ -1274,6 +1268,10 @@ fn samples() -> Vec<(Format, Vec<u8>)> {
     ]
     .into_iter()
     .chain(COMPRESSED.map(|name| (Format::Glb, std::fs::read(fixture(name)).unwrap())))
+    .chain([(
+        Format::ThreeMf,
+        std::fs::read(fixture("3mf/horse_production.3mf")).unwrap(),
+    )])
     .collect()
 }
 
@@ -1368,6 +1366,15 @@ fn fuzz_never_panics() {
     for _ in 0..per_sample {
         let json = mutate(&mut rng, &text);
         cases.push((Format::Glb, common::glb_from_text(&json, &bin)));
+    }
+    // A 3MF model part mutated inside a well-formed package, to reach the XML reader.
+    let part = format!(
+        r#"<model><resources>{TETRA_3MF_OBJECT}<object id="2"><components><component objectid="1" transform="1 0 0 0 1 0 0 0 1 0 0 0"/></components></object></resources><build><item objectid="2"/></build></model>"#
+    );
+    assert!(load(&three_mf(&part), Format::ThreeMf).is_ok());
+    for _ in 0..per_sample {
+        let xml = mutate(&mut rng, part.as_bytes());
+        cases.push((Format::ThreeMf, common::zip(&[("3D/3dmodel.model", &xml)])));
     }
     // The compressed streams mutated inside their well-formed containers, to reach the
     // meshopt and Draco decoders.
@@ -1542,4 +1549,159 @@ fn hostile_compressed_gltf_is_refused() {
         *byte ^= 0x5A;
     }
     assert!(load(&common::glb(&doc, &bin), Format::Glb).is_err());
+}
+
+// ---------------------------------------------------------------------------------------
+// 3MF: fixtures written by lib3mf, the 3MF Consortium's library (`tests/fixtures/3mf/make.py`)
+
+/// The OBJ horse's positions, each moved by `f`.
+fn horse_positions(f: impl Fn(DVec3) -> DVec3) -> Vec<DVec3> {
+    let obj = load_path(&fixture(CAPOD_OBJ), &Limits::default()).unwrap();
+    obj.positions.into_iter().map(f).collect()
+}
+
+fn assert_positions_close(actual: &[DVec3], expected: &[DVec3]) {
+    assert_eq!(actual.len(), expected.len());
+    for (a, e) in actual.iter().zip(expected) {
+        assert!(a.distance(*e) < 1e-5 * e.length().max(1.0), "{a} != {e}");
+    }
+}
+
+/// Two build items of one components object: two placed copies; the Production extension's
+/// `p:path` part in inches: the horse in millimetres.
+#[test]
+fn three_mf_build_items_components_and_parts() {
+    let two = load_path(&fixture("3mf/horse_two_items.3mf"), &Limits::default()).unwrap();
+    assert_eq!(two.triangles.len(), 2 * 688);
+    let mut expected = horse_positions(|p| p);
+    // The second item's transform `0 1 0 -1 0 0 0 0 1 1 0 0`: x' = 1 - y, y' = x.
+    expected.extend(horse_positions(|p| DVec3::new(1.0 - p.y, p.x, p.z)));
+    assert_positions_close(&two.positions, &expected);
+    assert!(signed_volume(&two) > 0.0, "windings kept");
+
+    let inches = load_path(&fixture("3mf/horse_production.3mf"), &Limits::default()).unwrap();
+    assert_eq!(inches.triangles.len(), 688);
+    assert_positions_close(&inches.positions, &horse_positions(|p| p * 25.4));
+
+    // Recognised by content, whatever the name.
+    let dir = tempfile::tempdir().unwrap();
+    let unnamed = dir.path().join("download");
+    std::fs::copy(fixture("3mf/horse_two_items.3mf"), &unnamed).unwrap();
+    assert_eq!(load_path(&unnamed, &Limits::default()).unwrap(), two);
+    let bytes = std::fs::read(fixture("3mf/horse_two_items.3mf")).unwrap();
+    assert_eq!(Format::sniff(&bytes), Some(Format::ThreeMf));
+}
+
+/// A minimal 3MF package around one model part.
+fn three_mf(model: &str) -> Vec<u8> {
+    common::zip(&[("3D/3dmodel.model", model.as_bytes())])
+}
+
+const TETRA_3MF_OBJECT: &str = r#"<object id="1"><mesh><vertices>
+<vertex x="0" y="0" z="0"/><vertex x="1" y="0" z="0"/><vertex x="0" y="1" z="0"/><vertex x="0" y="0" z="1"/>
+</vertices><triangles>
+<triangle v1="0" v2="2" v3="1"/><triangle v1="0" v2="1" v3="3"/><triangle v1="0" v2="3" v3="2"/><triangle v1="1" v2="2" v3="3"/>
+</triangles></mesh></object>"#;
+
+/// What a 3MF may hold that cannot be read: required extensions that change geometry
+/// (unsupported, with a conversion), component cycles, bad references and indices, support
+/// objects (left out), and counts over the limits.
+#[test]
+fn three_mf_refusals_and_limits() {
+    let model = |attributes: &str, resources: &str, build: &str| {
+        three_mf(&format!(
+            r#"<?xml version="1.0" encoding="UTF-8"?>
+<model unit="millimeter" xmlns="http://schemas.microsoft.com/3dmanufacturing/core/2015/02" {attributes}>
+<resources>{resources}</resources><build>{build}</build></model>"#
+        ))
+    };
+    let tetra = load(
+        &model("", TETRA_3MF_OBJECT, r#"<item objectid="1"/>"#),
+        Format::ThreeMf,
+    )
+    .unwrap();
+    assert_tetra(&tetra);
+
+    let slices = model(
+        r#"xmlns:s="http://schemas.microsoft.com/3dmanufacturing/slice/2015/07" requiredextensions="s""#,
+        TETRA_3MF_OBJECT,
+        r#"<item objectid="1"/>"#,
+    );
+    match load(&slices, Format::ThreeMf) {
+        Err(Error::Unsupported { feature, .. }) => assert!(feature.contains("slice"), "{feature}"),
+        other => panic!("{other:?}"),
+    }
+    let production = model(
+        r#"xmlns:p="http://schemas.microsoft.com/3dmanufacturing/production/2015/06" requiredextensions="p""#,
+        TETRA_3MF_OBJECT,
+        r#"<item objectid="1"/>"#,
+    );
+    assert_tetra(&load(&production, Format::ThreeMf).unwrap());
+
+    let parse_error = |bytes: Vec<u8>, expected: &str| match load(&bytes, Format::ThreeMf) {
+        Err(Error::Parse { message, .. }) => assert!(message.contains(expected), "{message}"),
+        other => panic!("{expected}: {other:?}"),
+    };
+    let cycle = r#"<object id="2"><components><component objectid="3"/></components></object>
+        <object id="3"><components><component objectid="2"/></components></object>"#;
+    parse_error(
+        model("", cycle, r#"<item objectid="2"/>"#),
+        "nest more than",
+    );
+    parse_error(
+        model("", TETRA_3MF_OBJECT, r#"<item objectid="9"/>"#),
+        "object 9",
+    );
+    parse_error(
+        model(
+            "",
+            &TETRA_3MF_OBJECT.replace(r#"v3="3""#, r#"v3="7""#),
+            r#"<item objectid="1"/>"#,
+        ),
+        "vertex 7",
+    );
+    parse_error(
+        model(
+            "",
+            TETRA_3MF_OBJECT,
+            r#"<item objectid="1" transform="1 0 0"/>"#,
+        ),
+        "twelve numbers",
+    );
+    parse_error(three_mf("<model><resources><object id=\"1\">"), "cut short");
+    parse_error(
+        common::zip(&[("3D/other.model", b"<model/>")]),
+        "no model part",
+    );
+    // A support structure is not the design.
+    let support =
+        TETRA_3MF_OBJECT.replace(r#"<object id="1">"#, r#"<object id="1" type="support">"#);
+    assert!(matches!(
+        load(
+            &model("", &support, r#"<item objectid="1"/>"#),
+            Format::ThreeMf
+        ),
+        Err(Error::NoTriangles)
+    ));
+    // A placement that multiplies a mesh past the triangle limit is refused before it is
+    // appended.
+    let many: String = (0..50).map(|_| r#"<component objectid="1"/>"#).collect();
+    let assembly =
+        format!(r#"{TETRA_3MF_OBJECT}<object id="2"><components>{many}</components></object>"#);
+    let limits = Limits {
+        max_input_triangles: 100,
+        ..Limits::default()
+    };
+    assert!(matches!(
+        load_bytes(
+            &model("", &assembly, r#"<item objectid="2"/>"#),
+            Format::ThreeMf,
+            &NoResources,
+            &limits
+        ),
+        Err(Error::TooLarge {
+            what: "triangles",
+            ..
+        })
+    ));
 }

@@ -17,8 +17,9 @@ use crate::{Error, Result};
 /// Name of the cache folder [`SignatureCache::beside`] creates in a collection.
 pub const CACHE_DIR: &str = ".salient-cache";
 
-/// Mesh files below `dir` in a recognised format, sorted by path. Hidden files and folders
-/// (such as the cache) are skipped.
+/// Mesh files below `dir` in a recognised format, and zip archives (of one mesh each,
+/// [`crate::mesh::load::archive`]), sorted by path. Hidden files and folders (such as the
+/// cache) are skipped.
 pub fn find_meshes(dir: &Path) -> Result<Vec<PathBuf>> {
     let io = |source: std::io::Error| Error::Io {
         path: dir.to_path_buf(),
@@ -36,11 +37,19 @@ pub fn find_meshes(dir: &Path) -> Result<Vec<PathBuf>> {
         |e: &walkdir::DirEntry| e.depth() == 0 || !e.file_name().to_string_lossy().starts_with('.');
     for entry in walker.filter_entry(visible) {
         let entry = entry.map_err(|e| io(e.into()))?;
-        if entry.file_type().is_file() && Format::from_path(entry.path()).is_some() {
+        if entry.file_type().is_file() && is_mesh_file(entry.path()) {
             files.push(entry.into_path());
         }
     }
     Ok(files)
+}
+
+/// Whether `path` names a mesh file: a recognised format, or a zip archive.
+pub fn is_mesh_file(path: &Path) -> bool {
+    Format::from_path(path).is_some()
+        || path
+            .extension()
+            .is_some_and(|e| e.eq_ignore_ascii_case("zip"))
 }
 
 /// Signatures on disk, one file per (file content, extraction parameters, signature format)

@@ -9,7 +9,9 @@ use crate::format::Format;
 #[derive(Debug, thiserror::Error)]
 pub enum Error {
     /// Neither the extension, the content type nor the first bytes identify a format.
-    #[error("unrecognised mesh format ({0}); supported: OBJ, glTF (.gltf/.glb), OFF, PLY, STL")]
+    #[error(
+        "unrecognised mesh format ({0}); supported: OBJ, glTF (.gltf/.glb), OFF, PLY, STL, 3MF"
+    )]
     UnknownFormat(String),
 
     /// The file is of a kind salient does not read (another application's format, glTF 1.0,

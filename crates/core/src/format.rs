@@ -20,6 +20,10 @@ pub enum Format {
     Ply,
     /// STereoLithography (text or binary).
     Stl,
+    /// 3D Manufacturing Format: a zip of XML models (core specification and the Production
+    /// extension's parts); the whole build is one model.
+    #[serde(rename = "3mf")]
+    ThreeMf,
 }
 
 impl fmt::Display for Format {
@@ -31,19 +35,21 @@ impl fmt::Display for Format {
             Format::Off => "OFF",
             Format::Ply => "PLY",
             Format::Stl => "STL",
+            Format::ThreeMf => "3MF",
         })
     }
 }
 
 impl Format {
     /// Every supported format.
-    pub const ALL: [Format; 6] = [
+    pub const ALL: [Format; 7] = [
         Format::Obj,
         Format::Gltf,
         Format::Glb,
         Format::Off,
         Format::Ply,
         Format::Stl,
+        Format::ThreeMf,
     ];
 
     /// The format of a file extension (without the dot, any case).
@@ -55,6 +61,7 @@ impl Format {
             "off" => Some(Format::Off),
             "ply" => Some(Format::Ply),
             "stl" => Some(Format::Stl),
+            "3mf" => Some(Format::ThreeMf),
             _ => None,
         }
     }
@@ -84,6 +91,9 @@ impl Format {
             | "application/sla"
             | "application/vnd.ms-pki.stl"
             | "application/x-stl" => Some(Format::Stl),
+            "model/3mf" | "application/vnd.ms-package.3dmanufacturing-3dmodel+xml" => {
+                Some(Format::ThreeMf)
+            }
             _ => None,
         }
     }
@@ -97,6 +107,7 @@ impl Format {
             Format::Off => "off",
             Format::Ply => "ply",
             Format::Stl => "stl",
+            Format::ThreeMf => "3mf",
         }
     }
 
@@ -110,6 +121,7 @@ impl Format {
             Format::Off => "model/x-off",
             Format::Ply => "model/ply",
             Format::Stl => "model/stl",
+            Format::ThreeMf => "model/3mf",
         }
     }
 }

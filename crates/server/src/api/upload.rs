@@ -29,7 +29,7 @@ pub struct ModelFields {
     pub tags: Option<String>,
     pub class: Option<String>,
     /// Format of a raw body when its content type does not say it
-    /// (`obj`, `gltf`, `glb`, `off`, `ply`, `stl`).
+    /// (`obj`, `gltf`, `glb`, `off`, `ply`, `stl`, `3mf`, or `zip` for an archive of one mesh).
     pub format: Option<String>,
 }
 
@@ -66,8 +66,10 @@ pub struct MeshFile(#[allow(dead_code)] Vec<u8>);
 #[derive(utoipa::ToSchema)]
 #[allow(dead_code)]
 pub struct MeshForm {
-    /// The mesh file (its name's extension gives the format); further files are glTF
-    /// resources, matched by file name.
+    /// The mesh file: OBJ, glTF/GLB (compressed with meshopt or Draco, instanced), OFF, PLY,
+    /// STL, 3MF, or a zip of one of them (a `.gltf` with its buffers). Its format comes from
+    /// `format`, else its file name's extension, else its content. Further files are a
+    /// `.gltf`'s resources, matched by file name (or base name, when unambiguous).
     #[schema(value_type = String, format = Binary)]
     file: Vec<u8>,
     id: Option<String>,
@@ -105,8 +107,8 @@ fn format_sniffed(body: &[u8]) -> Result<Format, AppError> {
 }
 
 /// Whether an upload is a zip archive of a mesh: named so (`format=zip`, a `.zip` file name, a
-/// zip media type), or nothing names it and its content is one (and not a 3D application's
-/// own zipped format, [`mesh::unsupported`]).
+/// zip media type), or nothing names it and its content is one (and not a format that is a
+/// zip package itself: 3MF, or a 3D application's own, [`mesh::unsupported`]).
 fn is_archive(named: Option<&str>, media_type: &str, body: &[u8]) -> bool {
     let named = named.map(|n| n.rsplit('.').next().unwrap_or(n).to_ascii_lowercase());
     match named.as_deref() {
@@ -116,7 +118,9 @@ fn is_archive(named: Option<&str>, media_type: &str, body: &[u8]) -> bool {
             matches!(
                 media_type,
                 "application/zip" | "application/x-zip-compressed"
-            ) || (archive::is_zip(body) && mesh::unsupported(body, None).is_none())
+            ) || (archive::is_zip(body)
+                && Format::sniff(body).is_none()
+                && mesh::unsupported(body, None).is_none())
         }
     }
 }

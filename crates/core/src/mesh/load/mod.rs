@@ -12,6 +12,7 @@ mod obj;
 mod off;
 mod ply;
 mod stl;
+mod three_mf;
 
 use std::collections::HashMap;
 use std::path::{Component, Path, PathBuf};
@@ -28,6 +29,9 @@ impl Format {
     pub fn sniff(bytes: &[u8]) -> Option<Format> {
         if bytes.starts_with(b"glTF") {
             return Some(Format::Glb);
+        }
+        if three_mf::is_3mf(bytes) {
+            return Some(Format::ThreeMf);
         }
         if stl::is_binary(bytes) {
             return Some(Format::Stl);
@@ -71,7 +75,7 @@ fn zip_holding(bytes: &[u8], entry: &[u8]) -> bool {
 }
 
 /// What users most often send instead of a mesh file of ours: 3D applications' own formats.
-const FOREIGN: [Foreign; 4] = [
+const FOREIGN: [Foreign; 3] = [
     Foreign {
         kind: "FBX",
         extensions: &["fbx"],
@@ -91,12 +95,6 @@ const FOREIGN: [Foreign; 4] = [
         extensions: &["blend"],
         signature: |b| b.starts_with(b"BLENDER"),
         conversion: "export it from Blender as glTF 2.0 (File > Export > glTF 2.0) or STL",
-    },
-    Foreign {
-        kind: "3MF",
-        extensions: &["3mf"],
-        signature: |b| zip_holding(b, b"3dmodel.model"),
-        conversion: "export it as STL (every slicer and CAD tool can: File > Export > STL)",
     },
 ];
 
@@ -206,6 +204,7 @@ pub fn load_bytes(
         Format::Off => off::load(bytes, limits)?,
         Format::Ply => ply::load(bytes, limits)?,
         Format::Stl => stl::load(bytes, limits)?,
+        Format::ThreeMf => three_mf::load(bytes, limits)?,
     };
     check(mesh, limits)
 }
@@ -218,7 +217,7 @@ pub fn load_path(path: &Path, limits: &Limits) -> Result<RawMesh> {
         source,
     })?;
     let name = path.file_name().and_then(|n| n.to_str());
-    let format = match Format::from_path(path) {
+    let format = match Format::from_path(path).or_else(|| Format::sniff(&bytes)) {
         Some(format) => format,
         None => match unsupported(&bytes, name) {
             Some(error) => return Err(error),
@@ -226,8 +225,7 @@ pub fn load_path(path: &Path, limits: &Limits) -> Result<RawMesh> {
                 let unpacked = archive::unpack(&bytes, limits)?;
                 return load_bytes(&unpacked.mesh, unpacked.format, &unpacked.resources, limits);
             }
-            None => Format::sniff(&bytes)
-                .ok_or_else(|| Error::UnknownFormat(path.display().to_string()))?,
+            None => return Err(Error::UnknownFormat(path.display().to_string())),
         },
     };
     let dir = path.parent().unwrap_or(Path::new(".")).to_path_buf();

@@ -11,7 +11,7 @@ const $ = (selector) => document.querySelector(selector);
 const KEY_STORAGE = 'salient.apiKey';
 const PAGE_SIZE = 24;
 const K = 24;
-const MESH_EXTENSIONS = ['obj', 'gltf', 'glb', 'off', 'ply', 'stl'];
+const MESH_EXTENSIONS = ['obj', 'gltf', 'glb', 'off', 'ply', 'stl', '3mf', 'zip'];
 const METHOD_NAMES = { hybrid: 'hybrid', ecc: 'ECC', d2: 'D2', lfd: 'LFD', geodesic: 'geodesic' };
 
 const state = {
@@ -73,7 +73,7 @@ function describe(err) {
     case 404: return `Not found${detail}.`;
     case 409: return `The model lacks what this method needs${detail}. Try another method.`;
     case 413: return 'The file is too large for this server.';
-    case 415: return `Unsupported format: use OBJ, glTF/GLB, OFF, PLY or STL${detail}.`;
+    case 415: return `Unsupported format: use OBJ, glTF/GLB, OFF, PLY, STL or 3MF${detail}.`;
     case 429: return `Too many requests: try again${retryText(err.retryAfter)}.`;
     case 503: return `The server is busy: try again${retryText(err.retryAfter) || ' in a moment'}.`;
     default: return `The request failed: ${err.status}${detail}.`;
@@ -301,7 +301,7 @@ function uploadFiles(files) {
   if (!files.length) return;
   if (!files.some(isMesh)) {
     // The server takes the format from the extension: say so before uploading anything.
-    setStatus(`Unsupported format: choose an OBJ, glTF/GLB, OFF, PLY or STL file (not ${files[0].name}).`, 'error');
+    setStatus(`Unsupported format: choose an OBJ, glTF/GLB, OFF, PLY, STL or 3MF file, or a zip of one (not ${files[0].name}).`, 'error');
     return;
   }
   runQuery({ kind: 'upload', files, label: mainFile(files).name });
