@@ -9,6 +9,7 @@ use std::time::Duration;
 use serde::Deserialize;
 
 use salient_core::collection::{find_meshes, is_mesh_file};
+use salient_core::display::UpAxis;
 use salient_core::mesh::load::archive;
 use salient_core::mesh::load::DirResources;
 use salient_core::mesh::{Format, Resources};
@@ -28,6 +29,8 @@ pub struct Item {
     pub class: Option<String>,
     /// The file's format; `None` for a zip archive, unpacked when read ([`read_upload`]).
     pub format: Option<Format>,
+    /// The model's up axis (a manifest's), when its format's is not the right one.
+    pub up: Option<UpAxis>,
     /// Tags of this model alone (a manifest's), instead of the run's.
     pub tags: Option<Vec<String>>,
     /// The id and fields are the library's own (a manifest's): the model is compared with
@@ -46,9 +49,11 @@ struct Entry {
     name: Option<String>,
     tags: Option<Vec<String>>,
     class: Option<String>,
+    /// `y` or `z`.
+    up: Option<UpAxis>,
 }
 
-/// The models a JSON Lines manifest names, one `{"path", "id", "name", "tags", "class"}` per
+/// The models a JSON Lines manifest names, one `{"path", "id", "name", "tags", "class", "up"}` per
 /// line (all but `path` optional; blank lines skipped). Ids default to [`model_id`] of the
 /// path, names to the file stem. Any bad line fails the whole plan, naming its line, so that
 /// nothing is uploaded from a manifest that says something else than meant.
@@ -92,6 +97,7 @@ pub fn plan_manifest(manifest: &Path) -> Result<Vec<Item>> {
             relative: entry.path,
             id,
             class: entry.class,
+            up: entry.up,
             format,
             tags: entry.tags,
             from_manifest: true,
@@ -136,6 +142,7 @@ pub fn plan(dir: &Path, class_from_folder: bool) -> Result<Vec<Item>> {
             relative,
             id,
             class,
+            up: None,
             tags: None,
             from_manifest: false,
         });

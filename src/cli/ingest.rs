@@ -207,13 +207,15 @@ impl Client {
         upload: &Upload,
         tags: &[String],
     ) -> Option<Outcome> {
-        let fields = serde_json::json!({"name": item.name, "tags": tags, "class": item.class});
+        let fields = serde_json::json!({
+            "name": item.name, "tags": tags, "class": item.class, "up": item.up
+        });
         let stored = match self.record(&item.id).await {
             Ok(Some(stored)) if stored["content_hash"] == upload.content_hash() => stored,
             Ok(_) => return None,
             Err(reason) => return Some(Outcome::Failed(reason)),
         };
-        if ["name", "tags", "class"]
+        if ["name", "tags", "class", "up"]
             .iter()
             .all(|k| stored[k] == fields[k])
         {
@@ -257,12 +259,15 @@ impl Client {
         }
         let mut query = vec![("id", item.id.clone()), ("name", item.name.clone())];
         query.extend(item.class.clone().map(|c| ("class", c)));
+        query.extend(item.up.map(|up| ("up", up.as_str().to_string())));
         if !tags.is_empty() {
             query.push(("tags", tags.join(",")));
         }
         let url = format!("{}/v1/models", self.base);
+        // The mesh's own name: a zip's is its unpacked mesh's format.
         let file_name = item
             .relative
+            .with_extension(upload.format.extension())
             .file_name()
             .map(|n| n.to_string_lossy().into_owned());
         let response = self

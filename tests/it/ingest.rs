@@ -193,7 +193,7 @@ fn a_manifest_gives_the_librarys_ids_and_fields_and_updates_them_without_re_extr
             format!(
                 r#"{{"path": "meshes/horse.obj", "id": "sku-1", "name": "Horse", "tags": [{horse_tags}], "class": "animal"}}
 
-{{"path": "meshes/tetra.gltf", "id": "sku-2"}}
+{{"path": "meshes/tetra.gltf", "id": "sku-2", "up": "z"}}
 {{"path": "meshes/horse.obj", "id": "sku-3", "name": "Horse (copy)"}}
 "#
             ),
@@ -236,6 +236,8 @@ fn a_manifest_gives_the_librarys_ids_and_fields_and_updates_them_without_re_extr
             ("sku-3", "Horse (copy)", serde_json::json!([]), None),
         ]
     );
+    assert_eq!(stored[1]["up"], "z", "the manifest's up axis");
+    assert_eq!(stored[0]["up"], serde_json::Value::Null);
 
     // New tags for one model: it alone is updated, and not re-extracted.
     write(r#""farm", "brown""#);
@@ -357,4 +359,37 @@ fn health_answers_for_a_running_server_only() {
     let out = health(&[], Some(&format!("127.0.0.1:{port}")));
     assert_eq!(out.status.code(), Some(1));
     assert!(String::from_utf8_lossy(&out.stderr).contains("does not answer"));
+}
+
+/// A library's files as they come: a zip of a `.gltf` with its buffer, a 3MF and compressed
+/// glTF are ingested from a folder as any mesh file.
+#[test]
+fn ingests_zips_3mf_and_compressed_gltf() {
+    let dir = tempfile::tempdir().unwrap();
+    let root = dir.path();
+    let read = server::fixture;
+    let zipped = crate::common::zip(&[
+        ("tetra/tetra.gltf", &read("gltf_external/tetra.gltf")),
+        ("tetra/tetra.bin", &read("gltf_external/tetra.bin")),
+    ]);
+    std::fs::write(root.join("tetra.zip"), zipped).unwrap();
+    copy_fixture("3mf/horse_two_items.3mf", &root.join("print.3mf"));
+    copy_fixture("web/horse_draco.glb", &root.join("draco.glb"));
+    let store = tempfile::tempdir().unwrap();
+    let server = serve(&store, &[]);
+    let (out, summary) = ingest(root, &server, &[]);
+    assert!(out.status.success(), "{summary}");
+    assert_eq!(counts(&summary), [3, 3, 0, 0], "{summary}");
+    let formats: Vec<_> = models(&server)
+        .iter()
+        .map(|m| (m["name"].as_str().unwrap().to_string(), m["format"].clone()))
+        .collect();
+    assert_eq!(
+        formats,
+        [
+            ("draco".into(), "glb".into()),
+            ("print".into(), "3mf".into()),
+            ("tetra".into(), "gltf".into()),
+        ]
+    );
 }

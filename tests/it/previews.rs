@@ -425,3 +425,142 @@ async fn the_page_is_served_to_everyone_and_its_data_only_with_a_key() {
         .await;
     assert_eq!(listed.status(), StatusCode::OK);
 }
+
+/// Each model stands on its own up axis: its format's (glTF +y; STL, 3MF +z), else the
+/// server's, unless it names its own on upload or by `PATCH`. Only pictures turn: the
+/// signature is untouched and nothing is re-extracted.
+#[tokio::test]
+async fn each_model_stands_on_its_own_up_axis() {
+    let app = TestApp::new();
+    let horse = fixture("capod_horse_m155.obj");
+    let stl = salient_core::mesh::write::Export::BinaryStl.write(
+        &salient_core::mesh::load_bytes(
+            &horse,
+            salient_core::mesh::Format::Obj,
+            &salient_core::mesh::load::NoResources,
+            &salient_core::Limits::default(),
+        )
+        .unwrap(),
+    );
+    for (query, content_type, body) in [
+        ("id=obj", "model/obj", horse.clone()),
+        ("id=obj-z&up=z", "model/obj", horse.clone()),
+        ("id=stl", "model/stl", stl.clone()),
+        (
+            "id=glb",
+            "model/gltf-binary",
+            fixture("web/horse_plain.glb"),
+        ),
+        ("id=print", "model/3mf", fixture("3mf/horse_production.3mf")),
+    ] {
+        let response = app.add(query, content_type, body).await;
+        assert_eq!(
+            response.status(),
+            StatusCode::CREATED,
+            "{query}: {}",
+            response.text()
+        );
+    }
+    let up = |id: &'static str| {
+        let app = &app;
+        async move {
+            let response = app.get(format!("/v1/models/{id}/preview.glb")).send().await;
+            assert_eq!(response.status(), StatusCode::OK);
+            read_glb(&response.body).up
+        }
+    };
+    let etag = |id: &'static str| {
+        let app = &app;
+        async move {
+            let response = app
+                .get(format!("/v1/models/{id}/thumbnail.png"))
+                .send()
+                .await;
+            response.headers()[header::ETAG]
+                .to_str()
+                .unwrap()
+                .to_string()
+        }
+    };
+    for (id, expected) in [
+        ("obj", "y"),
+        ("obj-z", "z"),
+        ("stl", "z"),
+        ("glb", "y"),
+        ("print", "z"),
+    ] {
+        assert_eq!(up(id).await, expected, "{id}");
+    }
+    assert_eq!(app.get_json("/v1/models/obj-z").await["up"], "z");
+    assert_eq!(
+        app.get_json("/v1/models/obj").await["up"],
+        serde_json::Value::Null
+    );
+    // The same mesh on another axis is another picture.
+    assert_ne!(etag("obj").await, etag("obj-z").await);
+    let extractions = || async {
+        let metrics = app.get("/metrics").send().await.text();
+        metrics
+            .lines()
+            .find(|l| l.starts_with("salient_extraction_seconds_count"))
+            .unwrap()
+            .to_string()
+    };
+    let before = extractions().await;
+    let signature = app.get("/v1/models/obj/signature").send().await.body;
+
+    // PATCH turns it, and `null` returns it to its format's (here the server's).
+    let patch = |body: serde_json::Value| {
+        app.request_with_method("PATCH", "/v1/models/obj")
+            .header("content-type", "application/json")
+            .body(body.to_string())
+            .send()
+    };
+    let patched = patch(serde_json::json!({"up": "z"})).await;
+    assert_eq!(patched.status(), StatusCode::OK, "{}", patched.text());
+    assert_eq!(patched.json()["up"], "z");
+    assert_eq!(up("obj").await, "z");
+    assert_eq!(
+        etag("obj").await,
+        etag("obj-z").await,
+        "same mesh, same axis"
+    );
+    assert_eq!(
+        app.get("/v1/models/obj/signature").send().await.body,
+        signature
+    );
+    assert_eq!(extractions().await, before, "nothing re-extracted");
+    patch(serde_json::json!({"up": null})).await;
+    assert_eq!(up("obj").await, "y");
+    let bad = patch(serde_json::json!({"up": "x"})).await;
+    assert_eq!(bad.status(), StatusCode::BAD_REQUEST);
+    let bad = app.add("id=bad&up=x", "model/obj", horse.clone()).await;
+    expect_error(&bad, StatusCode::BAD_REQUEST, "invalid_parameter");
+
+    // The same upload with the same axis is unchanged; another axis is a change.
+    let stored = app.get_json("/v1/models/obj-z").await;
+    let again = app.add("id=obj-z&up=z", "model/obj", horse.clone()).await;
+    assert_eq!(again.status(), StatusCode::OK);
+    assert_eq!(again.json(), stored);
+    let turned = app.add("id=obj-z&up=y", "model/obj", horse.clone()).await;
+    assert_eq!(turned.json()["up"], "y");
+
+    // An uploaded query's preview: its format's axis, or the one it names.
+    for (query, expected) in [("", "z"), ("?up=y", "y")] {
+        let response = app
+            .post(format!("/v1/preview{query}"))
+            .header("content-type", "model/stl")
+            .body(stl.clone())
+            .send()
+            .await;
+        assert_eq!(response.status(), StatusCode::OK, "{}", response.text());
+        assert_eq!(read_glb(&response.body).up, expected, "{query}");
+    }
+    // A comparison stands each model on its own axis: both are in its ETag.
+    let compared = app.get("/v1/compare?a=glb&b=print").send().await;
+    assert_eq!(compared.status(), StatusCode::OK);
+    assert!(compared.headers()[header::ETAG]
+        .to_str()
+        .unwrap()
+        .ends_with("yz\""));
+}

@@ -2,6 +2,7 @@
 //! the 3D view ([`crate::preview`]): which of its axes is up, and the colours of its surface
 //! and salient regions.
 
+use crate::format::Format;
 use glam::DMat3;
 use serde::{Deserialize, Serialize};
 
@@ -16,8 +17,10 @@ const REGION_COLOURS: [[f64; 3]; 6] = [
 ];
 /// The colour of the surface outside salient regions.
 pub const SURFACE: [f64; 3] = [0.78, 0.78, 0.8];
-/// Which of a model's axes points up. File formats do not say (glTF's is +y by its
-/// specification, STL files and CAD exports are mostly +z): a library chooses for its own.
+/// Which of a model's axes points up. Only pictures turn by it, never signatures. glTF's is
+/// +y by its specification, and 3MF and STL are +z by convention (3D printing, CAD); other
+/// formats do not say ([`UpAxis::of_format`]), so a library chooses for its own, and for each
+/// model when it must.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum UpAxis {
@@ -36,6 +39,21 @@ impl UpAxis {
     }
 
     pub const ALL: [UpAxis; 2] = [UpAxis::Y, UpAxis::Z];
+
+    /// The up axis a format fixes by specification or convention; `None` where it is the
+    /// library's choice (OBJ, PLY, OFF).
+    pub fn of_format(format: Format) -> Option<UpAxis> {
+        match format {
+            Format::Gltf | Format::Glb => Some(UpAxis::Y),
+            Format::Stl | Format::ThreeMf => Some(UpAxis::Z),
+            Format::Obj | Format::Ply | Format::Off => None,
+        }
+    }
+
+    /// `y` or `z`.
+    pub fn parse(name: &str) -> Option<UpAxis> {
+        UpAxis::ALL.into_iter().find(|up| up.as_str() == name)
+    }
 
     pub fn as_str(self) -> &'static str {
         match self {

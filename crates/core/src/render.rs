@@ -265,7 +265,7 @@ pub fn comparison(
     (a, b): (&Preview, &Preview),
     matches: &[Match],
     size: u32,
-    up: UpAxis,
+    (up_a, up_b): (UpAxis, UpAxis),
 ) -> RgbImage {
     let mut best: Vec<(f64, usize)> = vec![(0.0, usize::MAX); b.points.len()];
     for m in matches {
@@ -291,9 +291,11 @@ pub fn comparison(
     );
     smooth(size, 2, |s| {
         let mut image = RgbImage::new(2 * s, s);
-        let camera = [thumbnail_camera(up)];
-        image::imageops::replace(&mut image, &left.picture(&camera, s), 0, 0);
-        image::imageops::replace(&mut image, &right.picture(&camera, s), s as i64, 0);
+        // Each model stands on its own up axis.
+        let left = left.picture(&[thumbnail_camera(up_a)], s);
+        let right = right.picture(&[thumbnail_camera(up_b)], s);
+        image::imageops::replace(&mut image, &left, 0, 0);
+        image::imageops::replace(&mut image, &right, s as i64, 0);
         image
     })
 }

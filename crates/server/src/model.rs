@@ -7,6 +7,7 @@ use std::fmt;
 use std::sync::Arc;
 
 use bytes::Bytes;
+use salient_core::display::UpAxis;
 use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
 
@@ -163,6 +164,11 @@ pub struct ModelRecord {
     pub content_hash: String,
     #[schema(value_type = String, example = "obj")]
     pub format: Format,
+    /// The model's up axis (`y` or `z`), set on upload or by `PATCH`; `null`: its format's
+    /// (glTF +y; 3MF and STL +z), else the server's `--up-axis`. Turns pictures only.
+    #[serde(default)]
+    #[schema(value_type = Option<String>, example = "z")]
+    pub up: Option<UpAxis>,
     /// SHA-256 of the mesh file's bytes in the blob store.
     pub mesh_blob: String,
     /// glTF resources (`uri` → blob SHA-256) uploaded with the mesh.
@@ -184,6 +190,7 @@ pub struct Fields {
     pub name: Option<String>,
     pub tags: Vec<String>,
     pub class: Option<String>,
+    pub up: Option<UpAxis>,
 }
 
 /// Seconds since the Unix epoch.
@@ -206,6 +213,7 @@ impl ModelRecord {
             class: fields.class,
             content_hash: upload.content_hash().to_string(),
             format: upload.format,
+            up: fields.up,
             mesh_blob,
             resources,
             vertices: 0,
@@ -234,6 +242,20 @@ impl ModelRecord {
             name: self.name.clone(),
             tags: self.tags.clone(),
             class: self.class.clone(),
+            up: self.up,
         }
     }
+
+    /// The axis that points up in the model's pictures: its own, else its format's, else
+    /// the server's default (SPEC §9: the one place this is decided).
+    pub fn up_axis(&self, default: UpAxis) -> UpAxis {
+        up_axis(self.up, self.format, default)
+    }
+}
+
+/// The up axis of a mesh of `format`: `chosen`, else the format's, else `default`.
+pub fn up_axis(chosen: Option<UpAxis>, format: Format, default: UpAxis) -> UpAxis {
+    chosen
+        .or_else(|| UpAxis::of_format(format))
+        .unwrap_or(default)
 }

@@ -13,6 +13,7 @@ use super::request::{page_size, AppJson, AppPath, AppQuery, ModelPath};
 use super::upload::{MeshUpload, ModelFields};
 use super::AppState;
 use crate::model::{ModelId, ModelRecord};
+use salient_core::display::UpAxis;
 use salient_core::duplicate::Evidence;
 use salient_core::signature::Signature;
 
@@ -81,7 +82,7 @@ pub async fn add_model(
         .clone()
         .or(existing)
         .unwrap_or_else(|| ModelId::from_content(&content_hash));
-    let wanted = fields.fields();
+    let wanted = fields.fields()?;
     let snapshot = app.catalog.snapshot();
     if let Some(record) = snapshot.records.get(&id) {
         let unchanged = record.content_hash == content_hash
@@ -307,9 +308,14 @@ pub struct ModelPatch {
     #[serde(default, deserialize_with = "present")]
     #[schema(value_type = Option<String>)]
     pub class: Option<Option<String>>,
+    /// A new up axis, `y` or `z`; `null` returns to the format's (or the server's).
+    #[serde(default, deserialize_with = "present")]
+    #[schema(value_type = Option<String>)]
+    pub up: Option<Option<UpAxis>>,
 }
 
-/// Change a model's name, tags or class. Its shape is untouched: nothing is re-extracted.
+/// Change a model's name, tags, class or up axis. Its shape is untouched: nothing is
+/// re-extracted.
 #[utoipa::path(
     patch,
     path = "/v1/models/{id}",
@@ -354,6 +360,9 @@ pub async fn patch_model(
     }
     if let Some(class) = patch.class {
         record.class = class;
+    }
+    if let Some(up) = patch.up {
+        record.up = up;
     }
     record.updated_unix = crate::model::now_unix();
     // The signature is rewritten as stored: the record and signature change together.

@@ -17,10 +17,11 @@ use super::error::{AppError, ErrorBody};
 use super::files::not_modified;
 use super::models::no_model;
 use super::request::{AppPath, AppQuery, ModelPath};
-use super::upload::{MeshFile, MeshUpload};
+use super::upload::{up_named, MeshFile, MeshUpload};
 use super::AppState;
-use crate::model::ModelId;
+use crate::model::{up_axis, ModelId};
 use crate::store::Derived;
+use salient_core::display::UpAxis;
 use salient_core::pipeline::{preview_of_file, Extent};
 use salient_core::preview::Preview;
 use salient_core::render::{comparison, png, thumbnail};
@@ -68,6 +69,9 @@ pub struct QueryPreviewQuery {
     /// Label the salient regions (default true; needs the query's extraction, which is
     /// cached for a while after a search with the same file).
     pub features: Option<bool>,
+    /// The mesh's up axis, `y` or `z`: the preview turns it up. Default: its format's (glTF
+    /// +y; 3MF, STL +z), else the server's `--up-axis`.
+    pub up: Option<String>,
 }
 
 fn size_of(size: Option<u32>) -> Result<u32, AppError> {
@@ -86,6 +90,8 @@ fn size_of(size: Option<u32>) -> Result<u32, AppError> {
 struct Source {
     id: ModelId,
     content_hash: String,
+    /// The axis its pictures stand on ([`crate::model::ModelRecord::up_axis`]).
+    up: UpAxis,
     signature: Arc<Signature>,
     key: [u8; 32],
 }
@@ -104,6 +110,7 @@ impl Source {
         let (record, signature) = found.ok_or_else(|| no_model(&id))?;
         Ok(Source {
             key: Preview::key(&record.content_hash, &signature),
+            up: record.up_axis(app.config.up_axis),
             content_hash: record.content_hash,
             signature: Arc::new(signature),
             id,
@@ -192,7 +199,7 @@ pub async fn get_thumbnail(
     let size = size_of(q.size)?;
     let features = q.features.unwrap_or(false);
     let source = Source::of(&app, path.id()?).await?;
-    let up = app.config.up_axis;
+    let up = source.up;
     let etag = source.etag(&format!(
         "{size}{}{}",
         if features { "f" } else { "" },
@@ -231,7 +238,7 @@ pub async fn get_preview(
     headers: HeaderMap,
 ) -> Result<Response, AppError> {
     let source = Source::of(&app, path.id()?).await?;
-    let up = app.config.up_axis;
+    let up = source.up;
     let etag = source.etag(up.as_str());
     if let Some(unchanged) = not_modified(&headers, &etag) {
         return Ok(unchanged);
@@ -261,6 +268,8 @@ pub async fn query_preview(
     AppQuery(q): AppQuery<QueryPreviewQuery>,
     upload: MeshUpload,
 ) -> Result<Response, AppError> {
+    let chosen = up_named(q.up.as_deref())?.or(upload.fields.up()?);
+    let up = up_axis(chosen, upload.upload.format, app.config.up_axis);
     let upload = Arc::new(upload.upload);
     // Without features: the mesh as the extraction would prepare it, no regions.
     let features = match q.features.unwrap_or(true) {
@@ -271,11 +280,7 @@ pub async fn query_preview(
             .clone(),
         false => Vec::new(),
     };
-    let (params, limits, up) = (
-        app.config.params.clone(),
-        app.config.limits,
-        app.config.up_axis,
-    );
+    let (params, limits) = (app.config.params.clone(), app.config.limits);
     let glb = app
         .pool
         .run(move || {
@@ -322,12 +327,13 @@ pub async fn compare(
     let size = size_of(q.size)?;
     let a = Source::of(&app, ModelId::parse(&q.a)?).await?;
     let b = Source::of(&app, ModelId::parse(&q.b)?).await?;
-    let up = app.config.up_axis;
+    let up = (a.up, b.up);
     let etag = format!(
-        "\"{}-{}-{size}{}\"",
+        "\"{}-{}-{size}{}{}\"",
         hex::encode(&a.key[..12]),
         hex::encode(&b.key[..12]),
-        up.as_str()
+        up.0.as_str(),
+        up.1.as_str()
     );
     if let Some(unchanged) = not_modified(&headers, &etag) {
         return Ok(unchanged);

@@ -12,6 +12,7 @@ use serde::Deserialize;
 use super::error::AppError;
 use super::AppState;
 use crate::model::{Fields, ModelId, Upload};
+use salient_core::display::UpAxis;
 use salient_core::mesh::load::archive;
 use salient_core::mesh::{self, Format};
 use salient_core::Limits;
@@ -28,6 +29,9 @@ pub struct ModelFields {
     /// Comma-separated tags.
     pub tags: Option<String>,
     pub class: Option<String>,
+    /// The model's up axis, `y` or `z`, when its format's (glTF +y; 3MF, STL +z) or the
+    /// server's `--up-axis` is not the right one. Turns pictures only.
+    pub up: Option<String>,
     /// Format of a raw body when its content type does not say it
     /// (`obj`, `gltf`, `glb`, `off`, `ply`, `stl`, `3mf`, or `zip` for an archive of one mesh).
     pub format: Option<String>,
@@ -39,9 +43,14 @@ impl ModelFields {
         Ok(self.id.as_deref().map(ModelId::parse).transpose()?)
     }
 
+    /// The up axis the upload names, if any.
+    pub fn up(&self) -> Result<Option<UpAxis>, AppError> {
+        up_named(self.up.as_deref())
+    }
+
     /// The descriptive fields; tags trimmed, empty ones dropped.
-    pub fn fields(&self) -> Fields {
-        Fields {
+    pub fn fields(&self) -> Result<Fields, AppError> {
+        Ok(Fields {
             name: self.name.clone(),
             tags: self
                 .tags
@@ -53,8 +62,22 @@ impl ModelFields {
                 .map(String::from)
                 .collect(),
             class: self.class.clone(),
-        }
+            up: self.up()?,
+        })
     }
+}
+
+/// The up axis an `up` parameter names: `y` or `z`.
+pub fn up_named(name: Option<&str>) -> Result<Option<UpAxis>, AppError> {
+    name.map(|name| {
+        UpAxis::parse(name).ok_or_else(|| {
+            AppError::bad_request(
+                "invalid_parameter",
+                format!("up must be `y` or `z`, not {name:?}"),
+            )
+        })
+    })
+    .transpose()
 }
 
 /// A mesh file in a request body (documentation type for the OpenAPI description).
@@ -76,6 +99,7 @@ pub struct MeshForm {
     name: Option<String>,
     tags: Option<String>,
     class: Option<String>,
+    up: Option<String>,
     format: Option<String>,
 }
 
@@ -209,7 +233,7 @@ impl FromRequest<AppState> for MeshUpload {
     }
 }
 
-/// Multipart: text fields `id`, `name`, `tags`, `class`, `format` (over those of the query
+/// Multipart: text fields `id`, `name`, `tags`, `class`, `up`, `format` (over those of the query
 /// string); file fields are the mesh — the first whose file name has a mesh extension, else
 /// the field named `file` whatever its file name (a browser's `FormData` names a Blob `blob`)
 /// — and its resources (by file name). The mesh's format is `format`'s, else its file name's,
@@ -224,13 +248,14 @@ async fn from_multipart(
     while let Some(field) = multipart.next_field().await? {
         let name = field.name().unwrap_or("").to_string();
         match (field.file_name().map(String::from), name.as_str()) {
-            (None, "id" | "name" | "tags" | "class" | "format") => {
+            (None, "id" | "name" | "tags" | "class" | "up" | "format") => {
                 let value = field.text().await?;
                 let slot = match name.as_str() {
                     "id" => &mut fields.id,
                     "name" => &mut fields.name,
                     "tags" => &mut fields.tags,
                     "class" => &mut fields.class,
+                    "up" => &mut fields.up,
                     _ => &mut fields.format,
                 };
                 *slot = Some(value);
