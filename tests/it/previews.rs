@@ -564,3 +564,76 @@ async fn each_model_stands_on_its_own_up_axis() {
         .unwrap()
         .ends_with("yz\""));
 }
+
+/// A mixed library: each CAPOD model (posed with +z up) as a Z-up STL, as 3D-print files are,
+/// and as a GLB turned to +y up, as glTF exporters write it. Each stands on its format's axis,
+/// so the two thumbnails of a model are the same upright picture. `SALIENT_WRITE_SCREENSHOTS=1` writes them as the contact sheet
+/// `docs/screenshots/up-axis.png` (GLB above, STL below).
+#[tokio::test]
+async fn a_mixed_library_stands_upright() {
+    use salient_core::mesh::write::Export;
+    let app = TestApp::new();
+    let dir = crate::common::fixture("capod");
+    let mut names: Vec<String> = std::fs::read_dir(&dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .filter(|n| n.ends_with(".obj"))
+        .collect();
+    names.sort();
+    let size = 160u32;
+    let mut sheet = image::RgbImage::new(size * names.len() as u32, 2 * size);
+    for (column, name) in names.iter().enumerate() {
+        let mesh = salient_core::mesh::load_path(&dir.join(name), &salient_core::Limits::default())
+            .unwrap();
+        let mut y_up = mesh.clone();
+        for p in &mut y_up.positions {
+            *p = DVec3::new(p.x, p.z, -p.y);
+        }
+        let stem = name.trim_end_matches(".obj");
+        let mut pictures = Vec::new();
+        for (row, (suffix, export, file)) in [
+            ("glb", Export::Glb, &y_up),
+            ("stl", Export::BinaryStl, &mesh),
+        ]
+        .into_iter()
+        .enumerate()
+        {
+            let id = format!("{stem}-{suffix}");
+            let added = app
+                .add(
+                    &format!("id={id}"),
+                    export.format().media_type(),
+                    export.write(file),
+                )
+                .await;
+            assert_eq!(added.status(), StatusCode::CREATED, "{id}");
+            let png = app
+                .get(format!("/v1/models/{id}/thumbnail.png?size={size}"))
+                .send()
+                .await;
+            let picture = decode_png(&png.body);
+            image::imageops::replace(
+                &mut sheet,
+                &picture,
+                (column as u32 * size).into(),
+                (row as u32 * size).into(),
+            );
+            pictures.push(picture);
+        }
+        let difference = pictures[0]
+            .pixels()
+            .zip(pictures[1].pixels())
+            .map(|(a, b)| (0..3).map(|i| a.0[i].abs_diff(b.0[i]) as f64).sum::<f64>() / 3.0)
+            .sum::<f64>()
+            / (size * size) as f64;
+        assert!(
+            difference < 2.0,
+            "{stem}: the STL and the turned GLB differ by {difference}"
+        );
+    }
+    if std::env::var_os("SALIENT_WRITE_SCREENSHOTS").is_some() {
+        let path =
+            std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("docs/screenshots/up-axis.png");
+        sheet.save(path).unwrap();
+    }
+}
