@@ -32,7 +32,7 @@ pub struct Cli {
 
 #[derive(Debug, Subcommand)]
 enum Command {
-    /// Extract the signature of a mesh (OBJ, glTF/GLB, OFF, PLY, STL): a summary or JSON.
+    /// Extract the signature of a mesh (OBJ, glTF/GLB, OFF, PLY, STL, 3MF, or a zip of one): a summary or JSON.
     Extract(extract::Args),
     /// Compare two models (meshes or signature JSON files) by their salient features.
     Compare(compare::Args),

@@ -41,9 +41,12 @@ pub struct Args {
     /// Rankings running at once (each on its own threads); others wait in arrival order.
     #[arg(long, env = "SALIENT_RANKINGS")]
     rankings: Option<usize>,
-    /// Largest request body, bytes.
+    /// Largest request body, bytes, of every request but adding a model.
     #[arg(long, env = "SALIENT_MAX_BODY_BYTES")]
     max_body_bytes: Option<usize>,
+    /// Largest body, bytes, of adding a model (POST /v1/models).
+    #[arg(long, env = "SALIENT_MAX_UPLOAD_BYTES")]
+    max_upload_bytes: Option<usize>,
     /// Time limit of a request, seconds.
     #[arg(long, env = "SALIENT_REQUEST_TIMEOUT_SECS")]
     request_timeout_secs: Option<u64>,
@@ -94,6 +97,7 @@ impl Args {
         config.rankings = a.rankings.unwrap_or(config.rankings);
         config.extraction_nice = a.extraction_nice.unwrap_or(config.extraction_nice);
         config.max_body_bytes = a.max_body_bytes.unwrap_or(config.max_body_bytes);
+        config.max_upload_bytes = a.max_upload_bytes.unwrap_or(config.max_upload_bytes);
         config.request_timeout_secs = a
             .request_timeout_secs
             .unwrap_or(config.request_timeout_secs);

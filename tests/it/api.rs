@@ -329,15 +329,32 @@ async fn uploads_as_browsers_send_them_and_unsupported_kinds_say_how_to_convert(
 #[tokio::test]
 async fn bad_input_gets_the_right_status_and_the_server_keeps_serving() {
     let app = TestApp::with_config(|config| {
-        config.max_body_bytes = 200_000;
+        config.max_body_bytes = 100_000;
+        config.max_upload_bytes = 200_000;
         config.limits.max_input_vertices = 5000;
     });
     let horse = fixture("capod_horse_m155.obj");
 
-    // Every 413 names the limit and how to raise it.
+    // Every 413 names the limit and how to raise it: adding a model has its own, larger one.
     let big = app.add("id=big", "model/obj", vec![b'#'; 300_000]).await;
-    assert!(big.text().contains("--max-body-bytes"), "{}", big.text());
+    assert!(big.text().contains("--max-upload-bytes"), "{}", big.text());
     expect_error(big, StatusCode::PAYLOAD_TOO_LARGE, "payload_too_large").await;
+    let form = Form::new().file("file", "big.obj", vec![b'#'; 300_000]);
+    let big_form = app.post("/v1/models?id=big").multipart(form).send().await;
+    assert!(big_form.text().contains("--max-upload-bytes"), "{}", big_form.text());
+    expect_error(big_form, StatusCode::PAYLOAD_TOO_LARGE, "payload_too_large").await;
+    let between = vec![b'#'; 150_000];
+    let search = app
+        .post("/v1/search")
+        .header("content-type", "model/obj")
+        .body(between.clone())
+        .send()
+        .await;
+    assert!(search.text().contains("--max-body-bytes"), "{}", search.text());
+    expect_error(search, StatusCode::PAYLOAD_TOO_LARGE, "payload_too_large").await;
+    // The same body is within the limit of adding (and refused for what it holds).
+    let added = app.add("id=between", "model/obj", between).await;
+    assert_ne!(added.status(), StatusCode::PAYLOAD_TOO_LARGE, "{}", added.text());
     let many = obj(&shapes::icosphere(4)); // over the body limit
     expect_error(
         app.add("id=many", "model/obj", many).await,

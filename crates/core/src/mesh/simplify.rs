@@ -1,7 +1,11 @@
 //! Bounding the mesh size (SPEC §1.5) with meshoptimizer's quadric-error edge collapse.
 //!
 //! Collapses move no vertex: the simplified mesh uses a subset of the input vertices, so the
-//! positions reported in input coordinates stay exact.
+//! positions reported in input coordinates stay exact. A mesh far larger than the bound (a
+//! print file of millions of triangles) is first clustered down to [`PRE_PASS_FACTOR`] times
+//! the target by meshoptimizer's sloppy simplifier, which is linear in the input and also
+//! keeps a subset of the vertices; the collapses then work on that, so the cost stays linear
+//! in the input instead of growing with the number of collapses.
 
 use glam::DVec3;
 use meshopt::SimplifyOptions;
@@ -18,11 +22,18 @@ pub fn simplify(
     if positions.len() <= max_vertices {
         return None;
     }
-    let input = Input::new(positions, triangles);
+    let pre_passed;
+    let input = match Input::new(positions, triangles).clustered(PRE_PASS_FACTOR * 2 * max_vertices) {
+        Some(smaller) => {
+            pre_passed = smaller;
+            Input::new(positions, &pre_passed)
+        }
+        None => Input::new(positions, triangles),
+    };
     // meshoptimizer targets an index count; vertices follow triangles roughly 1:2, so aim in
     // proportion and tighten until the vertex bound holds (it converges in one or two rounds).
-    let mut target =
-        (input.indices.len() as f64 * max_vertices as f64 / positions.len() as f64) as usize;
+    let mut target = (input.indices.len() as f64 * max_vertices as f64
+        / input.vertex_count().max(1) as f64) as usize;
     let mut best = None;
     for _ in 0..8 {
         let (p, t) = input.collapse(target);
@@ -64,6 +75,10 @@ pub fn collapsed_triangles(
     Input::new(positions, triangles).kept(3 * max_triangles)
 }
 
+/// How many times the target's triangles the sloppy pre-pass leaves: enough that the edge
+/// collapses, which decide the final shape, still choose among many candidates.
+const PRE_PASS_FACTOR: usize = 40;
+
 /// A mesh in meshoptimizer's form.
 struct Input<'a> {
     positions: &'a [DVec3],
@@ -78,6 +93,32 @@ impl<'a> Input<'a> {
             points: positions.iter().map(|p| p.as_vec3().to_array()).collect(),
             indices: triangles.iter().flatten().copied().collect(),
         }
+    }
+
+    /// Vertices the triangles use.
+    fn vertex_count(&self) -> usize {
+        let mut used = vec![false; self.points.len()];
+        for &i in &self.indices {
+            used[i as usize] = true;
+        }
+        used.into_iter().filter(|&u| u).count()
+    }
+
+    /// The triangles left by clustering down to about `max_triangles` (sloppy simplification:
+    /// linear in the input), over the input's vertices; `None` when there are not many more
+    /// than that already.
+    fn clustered(&self, max_triangles: usize) -> Option<Vec<[u32; 3]>> {
+        if self.indices.len() / 3 <= 2 * max_triangles {
+            return None;
+        }
+        let kept = meshopt::simplify_sloppy_decoder(
+            &self.indices,
+            &self.points,
+            3 * max_triangles,
+            f32::MAX,
+            None,
+        );
+        Some(kept.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect())
     }
 
     /// Quadric edge collapses down to `target` indices (no error bound), unused vertices

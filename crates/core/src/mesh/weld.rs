@@ -11,7 +11,7 @@
 //! every pair within it in the 27 cells around a point, which is all a weld needs, and a
 //! union–find with the smallest member as root makes the result independent of input order.
 
-use std::collections::HashMap;
+use rustc_hash::FxHashMap;
 
 use glam::DVec3;
 
@@ -44,17 +44,19 @@ pub fn weld(raw: &RawMesh, tolerance: f64) -> Result<Welded> {
     if !(1e-100..=1e100).contains(&diagonal) {
         return Err(Error::ExtentOutOfRange { diagonal });
     }
-    let root = merge_close(&raw.positions, min, tolerance * diagonal);
+    let keys: Vec<[u64; 3]> = raw.positions.iter().map(|&p| coordinate_key(p)).collect();
+    let root = merge_close(&raw.positions, &keys, (min, max), tolerance * diagonal);
 
     // Canonical vertex order: along a Morton (Z-order) curve, so that vertices near in space
-    // are near in memory (extraction walks neighbourhoods), then by exact coordinates.
-    let mut kept: Vec<u32> = (0..raw.positions.len() as u32)
+    // are near in memory (extraction walks neighbourhoods), then by exact coordinates. Keys
+    // are computed once, not per comparison: this is the big meshes' hot loop.
+    let mut ordered: Vec<(u64, [u64; 3], u32)> = (0..raw.positions.len() as u32)
         .filter(|&i| root[i as usize] == i)
+        .map(|i| (morton(raw.positions[i as usize], min, max), keys[i as usize], i))
         .collect();
-    kept.sort_unstable_by_key(|&i| {
-        let p = raw.positions[i as usize];
-        (morton(p, min, max), coordinate_key(p))
-    });
+    ordered.sort_unstable();
+    drop(keys);
+    let kept: Vec<u32> = ordered.into_iter().map(|(_, _, i)| i).collect();
     let mut slot = vec![0u32; raw.positions.len()];
     for (new, &old) in kept.iter().enumerate() {
         slot[old as usize] = new as u32;
@@ -86,11 +88,15 @@ pub fn weld(raw: &RawMesh, tolerance: f64) -> Result<Welded> {
 
     // Duplicates: same vertex set. Keep the first in input order (a stable sort keeps it first).
     let before = triangles.len();
-    let mut indexed: Vec<(usize, [u32; 3])> = triangles.into_iter().enumerate().collect();
-    indexed.sort_by_key(|&(i, t)| (sorted(t), i));
-    indexed.dedup_by_key(|(_, t)| sorted(*t));
+    let mut indexed: Vec<([u32; 3], u32, [u32; 3])> = triangles
+        .into_iter()
+        .enumerate()
+        .map(|(i, t)| (sorted(t), i as u32, t))
+        .collect();
+    indexed.sort_unstable();
+    indexed.dedup_by_key(|(set, _, _)| *set);
     let duplicates_removed = before - indexed.len();
-    let triangles: Vec<[u32; 3]> = indexed.into_iter().map(|(_, t)| t).collect();
+    let triangles: Vec<[u32; 3]> = indexed.into_iter().map(|(_, _, t)| t).collect();
 
     let (positions, triangles) = compact(&positions, &triangles);
     if positions.len() < 4 {
@@ -110,29 +116,54 @@ pub fn weld(raw: &RawMesh, tolerance: f64) -> Result<Welded> {
 /// [`coordinate_key`] order. Two vertices are merged when they lie within `quantum` of each
 /// other, or in the same cell of the grid of side `quantum` anchored at `min` (so a weld is
 /// linear in the vertex count whatever the input: no cell is compared with itself pairwise).
-fn merge_close(points: &[DVec3], min: DVec3, quantum: f64) -> Vec<u32> {
-    let cell = |i: u32| {
-        let c = ((points[i as usize] - min) / quantum).floor();
-        [c.x as i64, c.y as i64, c.z as i64]
-    };
+fn merge_close(
+    points: &[DVec3],
+    keys: &[[u64; 3]],
+    (min, max): (DVec3, DVec3),
+    quantum: f64,
+) -> Vec<u32> {
+    // Cells packed in a u64, 21 bits an axis (x highest, so the packed order is (x, y, z)
+    // order), one cell of margin on each side for the neighbours. A grid finer than that (a
+    // tolerance below ~5e-7 of the extent) is coarsened to it: pairs are still found, and
+    // merging within a cell then acts at that size.
+    let extent = max - min;
+    let side = (extent.max_element() / ((1 << 21) - 4) as f64).max(quantum);
+    let cells: Vec<u64> = points
+        .iter()
+        .map(|&p| {
+            let c = ((p - min) / side).floor() + 1.0;
+            ((c.x as u64) << 42) | ((c.y as u64) << 21) | c.z as u64
+        })
+        .collect();
+    let cell = |i: u32| cells[i as usize];
     let mut order: Vec<u32> = (0..points.len() as u32).collect();
-    order.sort_unstable_by_key(|&i| (cell(i), coordinate_key(points[i as usize]), i));
-    let mut runs: HashMap<[i64; 3], &[u32]> = HashMap::new();
+    order.sort_unstable_by(|&a, &b| {
+        (cell(a), keys[a as usize], a).cmp(&(cell(b), keys[b as usize], b))
+    });
+    let mut runs: FxHashMap<u64, (u32, u32)> = FxHashMap::default();
+    runs.reserve(points.len());
+    let mut start = 0u32;
     for run in order.chunk_by(|&a, &b| cell(a) == cell(b)) {
-        runs.insert(cell(run[0]), run);
+        runs.insert(cell(run[0]), (start, run.len() as u32));
+        start += run.len() as u32;
     }
 
-    let mut groups = UnionFind::new(points);
+    let mut groups = UnionFind::new(keys);
     for run in order.chunk_by(|&a, &b| cell(a) == cell(b)) {
         for pair in run.windows(2) {
             groups.union(pair[0], pair[1]);
         }
-        let [x, y, z] = cell(run[0]);
+        let packed = cell(run[0]);
         // Each pair of neighbouring cells once: the 13 neighbours that follow in (x, y, z) order.
         for (dx, dy, dz) in FORWARD {
-            let Some(other) = runs.get(&[x + dx, y + dy, z + dz]) else {
+            let neighbour = packed
+                .wrapping_add_signed(dx << 42)
+                .wrapping_add_signed(dy << 21)
+                .wrapping_add_signed(dz);
+            let Some(&(at, len)) = runs.get(&neighbour) else {
                 continue;
             };
+            let other = &order[at as usize..(at + len) as usize];
             // Neighbouring cells crowded enough to make the pairwise test slow lie within
             // two cell diagonals of each other: merged without it.
             let close = run.len() * other.len() > MAX_PAIRS
@@ -173,14 +204,15 @@ const FORWARD: [(i64, i64, i64); 13] = [
 /// (ties by index), so the groups' representatives do not depend on the order of union.
 struct UnionFind<'a> {
     parent: Vec<u32>,
-    points: &'a [DVec3],
+    /// Each vertex's [`coordinate_key`].
+    keys: &'a [[u64; 3]],
 }
 
 impl<'a> UnionFind<'a> {
-    fn new(points: &'a [DVec3]) -> Self {
+    fn new(keys: &'a [[u64; 3]]) -> Self {
         Self {
-            parent: (0..points.len() as u32).collect(),
-            points,
+            parent: (0..keys.len() as u32).collect(),
+            keys,
         }
     }
 
@@ -195,7 +227,7 @@ impl<'a> UnionFind<'a> {
 
     fn union(&mut self, a: u32, b: u32) {
         let (a, b) = (self.find(a), self.find(b));
-        let key = |i: u32| (coordinate_key(self.points[i as usize]), i);
+        let key = |i: u32| (self.keys[i as usize], i);
         match key(a).cmp(&key(b)) {
             std::cmp::Ordering::Less => self.parent[b as usize] = a,
             std::cmp::Ordering::Greater => self.parent[a as usize] = b,

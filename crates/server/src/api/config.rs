@@ -21,8 +21,12 @@ pub struct Config {
     /// made again at each start (`rank::shelf`); a disk, not a memory file system. Default:
     /// `data` when serving from a store there, else the system's temporary folder.
     pub shelf_dir: Option<PathBuf>,
-    /// Largest request body in bytes (uploads); larger ones get 413.
+    /// Largest request body in bytes of every request but adding a model (searches, checks,
+    /// previews); larger ones get 413.
     pub max_body_bytes: usize,
+    /// Largest body in bytes of adding a model (`POST /v1/models`): a 3D-print library's STL
+    /// files run to hundreds of megabytes, a search's query need not.
+    pub max_upload_bytes: usize,
     /// Extractions running at once.
     pub workers: usize,
     /// Extractions waiting for a worker; when full, new ones get 503 with `Retry-After`.
@@ -81,6 +85,7 @@ impl Default for Config {
             data: PathBuf::from("salient-data"),
             shelf_dir: None,
             max_body_bytes: 64 << 20,
+            max_upload_bytes: 320 << 20,
             workers: std::thread::available_parallelism().map_or(2, |n| n.get()),
             queue_depth: 16,
             rankings: std::thread::available_parallelism().map_or(2, |n| n.get()),
@@ -89,9 +94,10 @@ impl Default for Config {
             cors_origins: Vec::new(),
             max_k: 1000,
             reindex_on_start: true,
+            // A binary STL at max_upload_bytes holds 6.7 M triangles over ~3.4 M vertices.
             limits: Limits {
-                max_input_vertices: 2_000_000,
-                max_input_triangles: 4_000_000,
+                max_input_vertices: 4_000_000,
+                max_input_triangles: 7_000_000,
                 max_archive_entries: 1000,
                 max_unpacked_bytes: 256 << 20,
             },
@@ -156,8 +162,15 @@ impl Config {
         if !(0..=19).contains(&self.extraction_nice) {
             return Err("extraction_nice must be within 0..=19".into());
         }
-        if self.max_body_bytes == 0 || self.request_timeout_secs == 0 || self.max_k == 0 {
-            return Err("max_body_bytes, request_timeout_secs and max_k must be positive".into());
+        if self.max_body_bytes == 0
+            || self.max_upload_bytes == 0
+            || self.request_timeout_secs == 0
+            || self.max_k == 0
+        {
+            return Err(
+                "max_body_bytes, max_upload_bytes, request_timeout_secs and max_k must be positive"
+                    .into(),
+            );
         }
         self.params.validate().map_err(|e| e.to_string())
     }

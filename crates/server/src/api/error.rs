@@ -228,6 +228,9 @@ fn limit_of(what: &str) -> &'static str {
 /// What a 413 for a request body says: axum's rejection knows neither the limit nor its name.
 pub const BODY_LIMIT: &str = "the request body is larger than the server's `max_body_bytes` (--max-body-bytes, SALIENT_MAX_BODY_BYTES)";
 
+/// What a 413 for the body of a model being added says.
+pub const UPLOAD_LIMIT: &str = "the model's file is larger than the server's `max_upload_bytes` (--max-upload-bytes, SALIENT_MAX_UPLOAD_BYTES)";
+
 /// A rejection with axum's status: 413 for a body over the limit, else a bad request.
 fn rejection(status: StatusCode, code: &'static str, message: String) -> AppError {
     if status == StatusCode::PAYLOAD_TOO_LARGE {

@@ -10,7 +10,7 @@ use serde::{Deserialize, Serialize};
 use super::duplicates::duplicates_of;
 use super::error::{AppError, ErrorBody};
 use super::request::{page_size, AppJson, AppPath, AppQuery, ModelPath};
-use super::upload::{MeshUpload, ModelFields};
+use super::upload::{MeshUpload, ModelFields, NewModel};
 use super::AppState;
 use crate::model::{ModelId, ModelRecord};
 use salient_core::display::UpAxis;
@@ -68,7 +68,7 @@ pub struct AddQuery {
 pub async fn add_model(
     State(app): State<AppState>,
     AppQuery(q): AppQuery<AddQuery>,
-    upload: MeshUpload,
+    NewModel(upload): NewModel,
 ) -> Result<(StatusCode, Json<ModelRecord>), AppError> {
     let MeshUpload { upload, fields } = upload;
     let content_hash = upload.content_hash().to_string();

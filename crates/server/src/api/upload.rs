@@ -5,11 +5,11 @@ use std::collections::BTreeMap;
 use std::path::Path;
 
 use axum::body::Bytes;
-use axum::extract::{FromRequest, Multipart, Request};
+use axum::extract::{DefaultBodyLimit, FromRequest, Multipart, Request};
 use axum::http::header::CONTENT_TYPE;
 use serde::Deserialize;
 
-use super::error::AppError;
+use super::error::{AppError, BODY_LIMIT, UPLOAD_LIMIT};
 use super::AppState;
 use crate::model::{Fields, ModelId, Upload};
 use salient_core::display::UpAxis;
@@ -164,10 +164,45 @@ fn unpacked(body: &[u8], limits: &Limits) -> Result<Upload, AppError> {
     ))
 }
 
+/// A mesh upload that adds a model (`POST /v1/models`): its body may be as large as
+/// `max_upload_bytes`, where every other upload (a search's query) is held to
+/// `max_body_bytes`.
+pub struct NewModel(pub MeshUpload);
+
+impl FromRequest<AppState> for NewModel {
+    type Rejection = AppError;
+
+    async fn from_request(request: Request, state: &AppState) -> Result<Self, AppError> {
+        let limit = state.config.max_upload_bytes;
+        MeshUpload::read(request, state, limit)
+            .await
+            .map(NewModel)
+            .map_err(|e| match e {
+                // The body's limit is this route's: the count limits say their own.
+                AppError::PayloadTooLarge(message) if message == BODY_LIMIT => {
+                    AppError::PayloadTooLarge(UPLOAD_LIMIT.into())
+                }
+                e => e,
+            })
+    }
+}
+
 impl FromRequest<AppState> for MeshUpload {
     type Rejection = AppError;
 
     async fn from_request(request: Request, state: &AppState) -> Result<Self, AppError> {
+        MeshUpload::read(request, state, state.config.max_body_bytes).await
+    }
+}
+
+impl MeshUpload {
+    /// Reads an upload whose body may take up to `body_limit` bytes.
+    async fn read(
+        mut request: Request,
+        state: &AppState,
+        body_limit: usize,
+    ) -> Result<Self, AppError> {
+        DefaultBodyLimit::max(body_limit).apply(&mut request);
         let limits = state.config.limits;
         let content_type = request
             .headers()

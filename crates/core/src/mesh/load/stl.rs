@@ -1,5 +1,5 @@
-//! STereoLithography via `stl_io`, text and binary (SPEC §1.1); `stl_io` already merges
-//! the corners of adjacent facets into shared vertices.
+//! STereoLithography, text via `stl_io` and binary read here (SPEC §1.1); corners with the
+//! same coordinates are merged into shared vertices.
 //!
 //! The loader, not `stl_io`, decides between text and binary: `stl_io` takes any file whose
 //! first line starts with `solid ` for text, which many binary exporters write into their
@@ -8,10 +8,11 @@
 //! its header, so a lying header cannot make the reader loop or allocate. Text files may hold
 //! several `solid … endsolid` blocks; all are read.
 
-use std::borrow::Cow;
+use std::collections::hash_map::Entry;
 use std::io::Cursor;
 
 use glam::DVec3;
+use rustc_hash::FxHashMap;
 
 use super::{check_limit, parse_error, skip_bom_and_space, vertex_id, Format};
 use crate::error::Result;
@@ -80,15 +81,36 @@ fn load_binary(bytes: &[u8], limits: &Limits) -> Result<RawMesh> {
             ),
         ));
     }
-    let input = if bytes.starts_with(b"solid") {
-        let mut copy = bytes.to_vec();
-        copy[..80].fill(0);
-        Cow::Owned(copy)
-    } else {
-        Cow::Borrowed(bytes)
+    // Read here rather than by `stl_io`: its indexed mesh keeps a normal and three `usize`s
+    // per facet, and it needs a copy of any file whose header starts with `solid`, so a
+    // 4 M-triangle print file would take twice its size again (`benches/big.rs`). Corners
+    // with the same bits are one vertex, as `stl_io` makes them.
+    let count = count as usize;
+    let mut mesh = RawMesh {
+        positions: Vec::with_capacity(count / 2 + 3),
+        triangles: Vec::with_capacity(count),
     };
-    let mut mesh = RawMesh::default();
-    append(&mut mesh, &input)?;
+    let mut vertices: FxHashMap<[u32; 3], u32> = FxHashMap::default();
+    vertices.reserve(count / 2 + 3);
+    for facet in bytes[HEADER..].chunks_exact(FACET as usize) {
+        let mut triangle = [0u32; 3];
+        for (slot, corner) in triangle.iter_mut().zip(facet[12..48].chunks_exact(12)) {
+            let bits = [0, 4, 8].map(|at| {
+                u32::from_le_bytes([corner[at], corner[at + 1], corner[at + 2], corner[at + 3]])
+            });
+            let next = mesh.positions.len();
+            *slot = match vertices.entry(bits) {
+                Entry::Occupied(known) => *known.get(),
+                Entry::Vacant(new) => {
+                    let id = vertex_id(next)?;
+                    mesh.positions
+                        .push(DVec3::from_array(bits.map(|b| f32::from_bits(b).into())));
+                    *new.insert(id)
+                }
+            };
+        }
+        mesh.triangles.push(triangle);
+    }
     Ok(mesh)
 }
 
