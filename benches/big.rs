@@ -32,7 +32,11 @@ fn write_torus(path: &Path, triangles: usize) {
             TAU * (j % segments) as f64 / segments as f64,
         );
         let r = 0.3 + 0.02 * (7.0 * u).sin() * (5.0 * v).sin();
-        let (x, y, z) = ((1.0 + r * v.cos()) * u.cos(), (1.0 + r * v.cos()) * u.sin(), r * v.sin());
+        let (x, y, z) = (
+            (1.0 + r * v.cos()) * u.cos(),
+            (1.0 + r * v.cos()) * u.sin(),
+            r * v.sin(),
+        );
         [x as f32, y as f32, z as f32]
     };
     let count = (2 * rings * segments) as u32;
@@ -50,7 +54,12 @@ fn write_torus(path: &Path, triangles: usize) {
     };
     for i in 0..rings {
         for j in 0..segments {
-            let [a, b, c, d] = [point(i, j), point(i + 1, j), point(i + 1, j + 1), point(i, j + 1)];
+            let [a, b, c, d] = [
+                point(i, j),
+                point(i + 1, j),
+                point(i + 1, j + 1),
+                point(i, j + 1),
+            ];
             facet([a, b, c]);
             facet([a, c, d]);
         }
@@ -77,7 +86,11 @@ fn extract(file: &Path) -> Value {
         .output()
         .unwrap();
     let wall = clock.elapsed().as_secs_f64();
-    assert!(output.status.success(), "{}", String::from_utf8_lossy(&output.stderr));
+    assert!(
+        output.status.success(),
+        "{}",
+        String::from_utf8_lossy(&output.stderr)
+    );
     let signature: Value = serde_json::from_slice(&output.stdout).unwrap();
     let stats = &signature["stats"]["extraction"];
     let mesh = &stats["mesh"];
@@ -135,7 +148,11 @@ fn main() {
         write_torus(&file, triangles);
     }
     let bytes = std::fs::metadata(&file).unwrap().len();
-    eprintln!("{}: {triangles} triangles, {:.0} MB", file.display(), bytes as f64 / 1e6);
+    eprintln!(
+        "{}: {triangles} triangles, {:.0} MB",
+        file.display(),
+        bytes as f64 / 1e6
+    );
     let extract = extract(&file);
     eprintln!("salient extract --threads 1: {extract:#}");
     let upload = upload(&file);
@@ -147,5 +164,9 @@ fn main() {
         "extract": extract,
         "upload": upload,
     });
-    std::fs::write(dir.join("big.json"), serde_json::to_string_pretty(&report).unwrap()).unwrap();
+    std::fs::write(
+        dir.join("big.json"),
+        serde_json::to_string_pretty(&report).unwrap(),
+    )
+    .unwrap();
 }

@@ -341,7 +341,11 @@ async fn bad_input_gets_the_right_status_and_the_server_keeps_serving() {
     expect_error(big, StatusCode::PAYLOAD_TOO_LARGE, "payload_too_large").await;
     let form = Form::new().file("file", "big.obj", vec![b'#'; 300_000]);
     let big_form = app.post("/v1/models?id=big").multipart(form).send().await;
-    assert!(big_form.text().contains("--max-upload-bytes"), "{}", big_form.text());
+    assert!(
+        big_form.text().contains("--max-upload-bytes"),
+        "{}",
+        big_form.text()
+    );
     expect_error(big_form, StatusCode::PAYLOAD_TOO_LARGE, "payload_too_large").await;
     let between = vec![b'#'; 150_000];
     let search = app
@@ -350,11 +354,20 @@ async fn bad_input_gets_the_right_status_and_the_server_keeps_serving() {
         .body(between.clone())
         .send()
         .await;
-    assert!(search.text().contains("--max-body-bytes"), "{}", search.text());
+    assert!(
+        search.text().contains("--max-body-bytes"),
+        "{}",
+        search.text()
+    );
     expect_error(search, StatusCode::PAYLOAD_TOO_LARGE, "payload_too_large").await;
     // The same body is within the limit of adding (and refused for what it holds).
     let added = app.add("id=between", "model/obj", between).await;
-    assert_ne!(added.status(), StatusCode::PAYLOAD_TOO_LARGE, "{}", added.text());
+    assert_ne!(
+        added.status(),
+        StatusCode::PAYLOAD_TOO_LARGE,
+        "{}",
+        added.text()
+    );
     let many = obj(&shapes::icosphere(4)); // over the body limit
     expect_error(
         app.add("id=many", "model/obj", many).await,

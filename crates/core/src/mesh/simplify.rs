@@ -23,7 +23,8 @@ pub fn simplify(
         return None;
     }
     let pre_passed;
-    let input = match Input::new(positions, triangles).clustered(PRE_PASS_FACTOR * 2 * max_vertices) {
+    let input = match Input::new(positions, triangles).clustered(PRE_PASS_FACTOR * 2 * max_vertices)
+    {
         Some(smaller) => {
             pre_passed = smaller;
             Input::new(positions, &pre_passed)

@@ -52,7 +52,13 @@ pub fn weld(raw: &RawMesh, tolerance: f64) -> Result<Welded> {
     // are computed once, not per comparison: this is the big meshes' hot loop.
     let mut ordered: Vec<(u64, [u64; 3], u32)> = (0..raw.positions.len() as u32)
         .filter(|&i| root[i as usize] == i)
-        .map(|i| (morton(raw.positions[i as usize], min, max), keys[i as usize], i))
+        .map(|i| {
+            (
+                morton(raw.positions[i as usize], min, max),
+                keys[i as usize],
+                i,
+            )
+        })
         .collect();
     ordered.sort_unstable();
     drop(keys);
