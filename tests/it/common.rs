@@ -137,6 +137,17 @@ pub fn glb(json: &Value, bin: &[u8]) -> Vec<u8> {
     glb_from_text(&serde_json::to_vec(json).expect("JSON serialises"), bin)
 }
 
+/// The CAPOD horse compressed as web tools write it (`tests/fixtures/web/`, beside its
+/// uncompressed original `horse_plain.glb`): meshopt in every form, Draco required and not.
+pub const COMPRESSED_HORSES: [&str; 6] = [
+    "horse_meshopt.glb",
+    "horse_meshopt_khr.glb",
+    "horse_meshopt_fallback.glb",
+    "horse_gt_meshopt.glb",
+    "horse_draco.glb",
+    "horse_draco_optional.glb",
+];
+
 /// A GLB container's JSON and BIN chunks (the BIN chunk empty if there is none), to edit a
 /// real file and write it again with [`glb`].
 pub fn split_glb_chunks(bytes: &[u8]) -> (Value, Vec<u8>) {

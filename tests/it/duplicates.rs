@@ -316,14 +316,7 @@ async fn compressed_gltf_copies_are_found_as_their_original() {
         .add("id=horse", "model/obj", fixture("capod_horse_m155.obj"))
         .await;
     assert_eq!(response.status(), StatusCode::CREATED);
-    for name in [
-        "horse_meshopt.glb",
-        "horse_meshopt_khr.glb",
-        "horse_meshopt_fallback.glb",
-        "horse_gt_meshopt.glb",
-        "horse_draco.glb",
-        "horse_draco_optional.glb",
-    ] {
+    for name in crate::common::COMPRESSED_HORSES {
         let response = app
             .post("/v1/duplicates/check")
             .header("content-type", "model/gltf-binary")

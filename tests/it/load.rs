@@ -1438,14 +1438,7 @@ fn compressed_gltf_matches_its_original() {
     assert_eq!(plain.triangles.len(), 688);
     let (lo, hi) = bounds(&plain);
     let step = (hi - lo).max_element() / f64::from(1 << 13);
-    for name in [
-        "horse_meshopt.glb",
-        "horse_meshopt_khr.glb",
-        "horse_meshopt_fallback.glb",
-        "horse_gt_meshopt.glb",
-        "horse_draco.glb",
-        "horse_draco_optional.glb",
-    ] {
+    for name in common::COMPRESSED_HORSES {
         let mesh = web(name).unwrap_or_else(|e| panic!("{name}: {e}"));
         assert_eq!(mesh.triangles.len(), plain.triangles.len(), "{name}");
         let (l, h) = bounds(&mesh);
