@@ -4,6 +4,7 @@ mod v0001_initial;
 mod v0002_signature_format3;
 mod v0003_previews;
 mod v0004_patches;
+mod v0005_blob_files;
 
 use crate::store::StoreResult;
 
@@ -35,5 +36,10 @@ pub const MIGRATIONS: &[Migration] = &[
         version: 4,
         name: "patch descriptor cache",
         apply: v0004_patches::apply,
+    },
+    Migration {
+        version: 5,
+        name: "large blobs as files",
+        apply: v0005_blob_files::apply,
     },
 ];

@@ -87,7 +87,7 @@ fn release_0_1_0_signature_files_read_as_they_were_written() {
 async fn release_0_1_0_store_opens_lists_serves_and_ranks() {
     let dir = tempfile::tempdir().unwrap();
     let store = golden_store(&dir.path().join("store"));
-    assert_eq!(SledStore::stored_version(store.db()).unwrap(), 4);
+    assert_eq!(SledStore::stored_version(store.db()).unwrap(), 5);
     for loaded in store.load_all() {
         let loaded = loaded.unwrap();
         assert_eq!(

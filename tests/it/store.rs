@@ -37,7 +37,7 @@ fn a_version_0_store_is_migrated_at_open() {
         assert_eq!(SledStore::stored_version(&db).unwrap(), 0);
     }
     let store = SledStore::open(dir.path()).unwrap();
-    assert_eq!(SledStore::stored_version(store.db()).unwrap(), 4);
+    assert_eq!(SledStore::stored_version(store.db()).unwrap(), 5);
     let names: Vec<_> = store
         .db()
         .tree_names()
@@ -48,6 +48,7 @@ fn a_version_0_store_is_migrated_at_open() {
         "models",
         "signatures",
         "blobs",
+        "blob_files",
         "blob_refs",
         "content",
         "state",
@@ -74,7 +75,7 @@ fn a_store_from_a_newer_salient_is_refused() {
     match reopen(dir.path()) {
         Err(StoreError::Incompatible {
             found: 99,
-            supported: 4,
+            supported: 5,
         }) => {}
         other => panic!("expected a refusal, got {:?}", other.map(|_| ())),
     }
@@ -120,6 +121,40 @@ fn files_are_deduplicated_and_released_with_their_last_model() {
     let store = reopen(dir.path()).unwrap();
     assert_eq!(store.upload("two").unwrap().unwrap().mesh, b.mesh);
     assert_eq!(store.load_all().count(), 1);
+}
+
+/// A large file (a print file) is kept as a file beside sled, not in it: shared by the models
+/// that have it, read back whole, and removed with the last of them; small ones stay in sled.
+#[test]
+fn large_files_are_kept_as_files_and_released_with_their_last_model() {
+    let dir = tempfile::tempdir().unwrap();
+    let store = SledStore::open(dir.path()).unwrap();
+    let mut big = b"# a large comment\n".repeat(80_000);
+    big.extend_from_slice(b"v 0 0 0\n");
+    assert!(big.len() > 1 << 20);
+    let (large, small) = (upload(&big), upload(b"v 1 1 1\n"));
+    store.put(&record("a", &large), b"sig", &large).unwrap();
+    store.put(&record("b", &large), b"sig", &large).unwrap();
+    store.put(&record("c", &small), b"sig", &small).unwrap();
+    let file = dir.path().join("files").join(sha256_hex(&big));
+    assert_eq!(std::fs::read(&file).unwrap(), big);
+    let blobs = store.db().open_tree("blobs").unwrap();
+    assert_eq!(blobs.len(), 1, "only the small file is in sled");
+    drop(blobs);
+    drop(store);
+    let store = reopen(dir.path()).unwrap();
+    assert_eq!(store.upload("b").unwrap().unwrap().mesh, big);
+    assert!(store.delete("a").unwrap().is_some());
+    assert!(file.exists(), "b still has it");
+    // Replaced by other content: the last reference goes, and the file with it.
+    store.put(&record("b", &small), b"sig", &small).unwrap();
+    assert!(!file.exists());
+    assert_eq!(store.upload("b").unwrap().unwrap().mesh, small.mesh);
+    assert_eq!(
+        std::fs::read_dir(dir.path().join("files")).unwrap().count(),
+        0,
+        "no file left behind"
+    );
 }
 
 /// `salient reindex` re-extracts every stored model with new parameters.

@@ -141,12 +141,17 @@ impl Upload {
 
     /// Blob names of the mesh and of each resource, as a record stores them.
     pub fn blobs(&self) -> (String, BTreeMap<String, String>) {
-        let resources = self
+        let resources: BTreeMap<String, String> = self
             .resources
             .iter()
             .map(|(uri, bytes)| (uri.clone(), sha256_hex(bytes)))
             .collect();
-        (sha256_hex(&self.mesh), resources)
+        // A single file's content hash is its SHA-256: not computed twice for a large one.
+        let mesh = match resources.is_empty() {
+            true => self.content_hash.clone(),
+            false => sha256_hex(&self.mesh),
+        };
+        (mesh, resources)
     }
 }
 

@@ -6,7 +6,8 @@ use std::path::Path;
 
 use axum::body::Bytes;
 use axum::extract::{DefaultBodyLimit, FromRequest, Multipart, Request};
-use axum::http::header::CONTENT_TYPE;
+use axum::http::header::{CONTENT_LENGTH, CONTENT_TYPE};
+use http_body_util::BodyExt;
 use serde::Deserialize;
 
 use super::error::{AppError, BODY_LIMIT, UPLOAD_LIMIT};
@@ -149,6 +150,33 @@ fn is_archive(named: Option<&str>, media_type: &str, body: &[u8]) -> bool {
     }
 }
 
+/// A raw upload's body in one buffer of its declared length, refused past `limit`: axum's
+/// `Bytes` extractor gathers the chunks and then copies them into one buffer, which holds a
+/// 200 MB print file twice (`benches/big.rs`).
+async fn body_bytes(request: Request, limit: usize) -> Result<Bytes, AppError> {
+    let too_large = || AppError::PayloadTooLarge(BODY_LIMIT.into());
+    let declared = request
+        .headers()
+        .get(CONTENT_LENGTH)
+        .and_then(|v| v.to_str().ok()?.parse::<usize>().ok());
+    if declared.is_some_and(|n| n > limit) {
+        return Err(too_large());
+    }
+    let mut buffer = Vec::with_capacity(declared.unwrap_or(0));
+    let mut body = request.into_body();
+    while let Some(frame) = body.frame().await {
+        let frame =
+            frame.map_err(|e| AppError::bad_request("invalid_body", e.to_string()))?;
+        if let Ok(data) = frame.into_data() {
+            if buffer.len() + data.len() > limit {
+                return Err(too_large());
+            }
+            buffer.extend_from_slice(&data);
+        }
+    }
+    Ok(Bytes::from(buffer))
+}
+
 /// The mesh and resources of a zip archive ([`archive::unpack`]), as an upload.
 fn unpacked(body: &[u8], limits: &Limits) -> Result<Upload, AppError> {
     let unpacked = archive::unpack(body, limits)?;
@@ -219,7 +247,7 @@ impl MeshUpload {
                 .map_err(|r| AppError::bad_request("invalid_multipart", r.body_text()))?;
             return from_multipart(multipart, query, &limits).await;
         }
-        let body = Bytes::from_request(request, state).await?;
+        let body = body_bytes(request, body_limit).await?;
         if body.is_empty() {
             return Err(AppError::bad_request(
                 "empty_body",

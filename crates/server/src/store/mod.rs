@@ -19,6 +19,9 @@ pub use sled_store::SledStore;
 pub enum StoreError {
     #[error("storage backend: {0}")]
     Backend(#[from] sled::Error),
+    /// A blob file could not be written or read.
+    #[error("storage file: {0}")]
+    File(#[from] std::io::Error),
     /// Stored bytes do not decode; the store is damaged.
     #[error("corrupt store entry {key}: {message}")]
     Corrupt { key: String, message: String },

@@ -5,7 +5,10 @@
 //! interrupted write leaves nothing (see `tests/durability.rs`, which kills the server
 //! mid-ingest).
 
-use std::path::Path;
+use std::cell::RefCell;
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::sync::Mutex;
 
 use sled::transaction::{ConflictableTransactionError, TransactionalTree};
 use sled::Transactional;
@@ -29,12 +32,24 @@ pub struct SledStore {
     models: sled::Tree,
     signatures: sled::Tree,
     blobs: sled::Tree,
+    /// Blobs kept as files: hash → size.
+    blob_files: sled::Tree,
     blob_refs: sled::Tree,
     content: sled::Tree,
     state: sled::Tree,
     previews: sled::Tree,
     patches: sled::Tree,
+    /// The folder of the file blobs.
+    files: PathBuf,
+    /// Held while blob files are written or removed with the transaction that goes with
+    /// them, so that no write finds a file a removal is about to delete.
+    file_lock: Mutex<()>,
 }
+
+/// Blobs this large are kept as files beside sled (`files/` in the store's folder), sled
+/// holding only their size: sled copies a value twice on its way to its log and caches it,
+/// so a 200 MB print file cost 400 MB of memory to store (`benches/big.rs`).
+const FILE_BLOB_BYTES: usize = 1 << 20;
 
 fn corrupt(key: &[u8], message: impl ToString) -> StoreError {
     StoreError::Corrupt {
@@ -75,15 +90,20 @@ impl SledStore {
             .cache_capacity(CACHE_BYTES)
             .open()?;
         Self::migrate(&db)?;
+        let files = dir.join("files");
+        std::fs::create_dir_all(&files)?;
         Ok(Self {
             models: db.open_tree("models")?,
             signatures: db.open_tree("signatures")?,
             blobs: db.open_tree("blobs")?,
+            blob_files: db.open_tree("blob_files")?,
             blob_refs: db.open_tree("blob_refs")?,
             content: db.open_tree("content")?,
             state: db.open_tree("state")?,
             previews: db.open_tree("previews")?,
             patches: db.open_tree("patches")?,
+            files,
+            file_lock: Mutex::new(()),
             db,
         })
     }
@@ -130,33 +150,91 @@ impl SledStore {
     pub fn db(&self) -> &sled::Db {
         &self.db
     }
+
+    /// The trees of a model, in [`ModelTrees`] order.
+    #[allow(clippy::type_complexity)]
+    fn model_trees(
+        &self,
+    ) -> (
+        &sled::Tree,
+        &sled::Tree,
+        &sled::Tree,
+        &sled::Tree,
+        &sled::Tree,
+        &sled::Tree,
+        &sled::Tree,
+        &sled::Tree,
+    ) {
+        (
+            &self.models,
+            &self.signatures,
+            &self.blobs,
+            &self.blob_files,
+            &self.blob_refs,
+            &self.content,
+            &self.previews,
+            &self.patches,
+        )
+    }
+
+    /// Writes a blob's file durably: to a temporary name, synced, then renamed (a crash
+    /// leaves no partial file under a blob's name, at worst a file no record refers to).
+    fn write_file(&self, hash: &str, bytes: &[u8]) -> StoreResult<()> {
+        let partial = self.files.join(format!("{hash}.partial"));
+        let mut file = std::fs::File::create(&partial)?;
+        file.write_all(bytes)?;
+        file.sync_all()?;
+        std::fs::rename(&partial, self.files.join(hash))?;
+        std::fs::File::open(&self.files)?.sync_all()?;
+        Ok(())
+    }
+
+    /// Deletes the files of blobs a committed transaction released. A file that cannot be
+    /// deleted only takes disk space: the records no longer name it.
+    fn remove_files(&self, hashes: &[String]) {
+        for hash in hashes {
+            if let Err(e) = std::fs::remove_file(self.files.join(hash)) {
+                tracing::warn!(error = %e, "a released blob file was not removed");
+            }
+        }
+    }
 }
 
-/// Adds one reference to a blob, storing its bytes on the first.
+/// Adds one reference to a blob, storing it on the first: its bytes, or (a large one, whose
+/// file is written before the transaction) its size.
 fn add_blob(
-    blobs: &TransactionalTree,
-    refs: &TransactionalTree,
+    trees: &ModelTrees,
     hash: &str,
     bytes: &[u8],
 ) -> Result<(), ConflictableTransactionError<StoreError>> {
+    let (_, _, blobs, files, refs, ..) = trees;
     let n = count(refs.get(hash)?);
     if n == 0 {
-        blobs.insert(hash, bytes)?;
+        if bytes.len() >= FILE_BLOB_BYTES {
+            files.insert(hash, &(bytes.len() as u64).to_be_bytes())?;
+        } else {
+            blobs.insert(hash, bytes)?;
+        }
     }
     refs.insert(hash, &(n + 1).to_be_bytes())?;
     Ok(())
 }
 
-/// Drops one reference to a blob, removing it with the last.
+/// Drops one reference to a blob, removing it with the last; a removed file blob's hash goes
+/// to `released`, for its file to be deleted once the transaction commits.
 fn release_blob(
-    blobs: &TransactionalTree,
-    refs: &TransactionalTree,
+    trees: &ModelTrees,
     hash: &str,
+    released: &RefCell<Vec<String>>,
 ) -> Result<(), ConflictableTransactionError<StoreError>> {
+    let (_, _, blobs, files, refs, ..) = trees;
     match count(refs.get(hash)?) {
         0 | 1 => {
             refs.remove(hash)?;
             blobs.remove(hash)?;
+            if files.remove(hash)?.is_some() {
+                released.borrow_mut().push(hash.to_string());
+            }
         }
         n => {
             refs.insert(hash, &(n - 1).to_be_bytes())?;
@@ -171,8 +249,9 @@ fn blob_hashes(record: &ModelRecord) -> impl Iterator<Item = &str> {
 }
 
 /// The trees a write of a whole model changes, in a transaction: models, signatures, blobs,
-/// blob references, content, previews, patches.
+/// blob files, blob references, content, previews, patches.
 type ModelTrees = (
+    TransactionalTree,
     TransactionalTree,
     TransactionalTree,
     TransactionalTree,
@@ -186,13 +265,14 @@ type ModelTrees = (
 fn unlink(
     trees: &ModelTrees,
     old: &ModelRecord,
+    released: &RefCell<Vec<String>>,
 ) -> Result<(), ConflictableTransactionError<StoreError>> {
-    let (models, signatures, blobs, refs, content, previews, patches) = trees;
+    let (models, signatures, _, _, _, content, previews, patches) = trees;
     for tree in [models, signatures, previews, patches] {
         tree.remove(old.id.as_str().as_bytes())?;
     }
     for hash in blob_hashes(old) {
-        release_blob(blobs, refs, hash)?;
+        release_blob(trees, hash, released)?;
     }
     if content.get(&old.content_hash)?.as_deref() == Some(old.id.as_str().as_bytes()) {
         content.remove(old.content_hash.as_bytes())?;
@@ -217,29 +297,29 @@ impl super::Store for SledStore {
                         .map(|bytes| (sha256_hex(bytes), &bytes[..])),
                 )
                 .collect();
-        let trees = (
-            &self.models,
-            &self.signatures,
-            &self.blobs,
-            &self.blob_refs,
-            &self.content,
-            &self.previews,
-            &self.patches,
-        );
-        let previous = trees
+        let _files = self.file_lock.lock().expect("never poisoned");
+        for (hash, bytes) in &files {
+            if bytes.len() >= FILE_BLOB_BYTES && !self.blob_refs.contains_key(hash)? {
+                self.write_file(hash, bytes)?;
+            }
+        }
+        let released = RefCell::new(Vec::new());
+        let previous = self
+            .model_trees()
             .transaction(|view| {
-                let (models, signatures, blobs, refs, content, _, _) = view;
+                released.borrow_mut().clear();
+                let (models, signatures, _, _, _, content, _, _) = view;
                 let previous = match models.get(record.id.as_str().as_bytes())? {
                     Some(bytes) => {
                         let old = decode_record(record.id.as_str().as_bytes(), &bytes)
                             .map_err(ConflictableTransactionError::Abort)?;
-                        unlink(view, &old)?;
+                        unlink(view, &old, &released)?;
                         Some(old)
                     }
                     None => None,
                 };
                 for (hash, bytes) in &files {
-                    add_blob(blobs, refs, hash, bytes)?;
+                    add_blob(view, hash, bytes)?;
                 }
                 models.insert(record.id.as_str().as_bytes(), encoded.as_slice())?;
                 signatures.insert(record.id.as_str().as_bytes(), signature)?;
@@ -251,6 +331,7 @@ impl super::Store for SledStore {
             })
             .map_err(transaction_error)?;
         self.db.flush()?;
+        self.remove_files(&released.into_inner());
         Ok(previous)
     }
 
@@ -295,34 +376,33 @@ impl super::Store for SledStore {
     }
 
     fn blob(&self, hash: &str) -> StoreResult<Option<bytes::Bytes>> {
-        Ok(self
-            .blobs
-            .get(hash)?
-            .map(|b| bytes::Bytes::copy_from_slice(&b)))
+        if let Some(bytes) = self.blobs.get(hash)? {
+            return Ok(Some(bytes::Bytes::copy_from_slice(&bytes)));
+        }
+        if !self.blob_files.contains_key(hash)? {
+            return Ok(None);
+        }
+        Ok(Some(std::fs::read(self.files.join(hash))?.into()))
     }
 
     fn delete(&self, id: &str) -> StoreResult<Option<ModelRecord>> {
-        let trees = (
-            &self.models,
-            &self.signatures,
-            &self.blobs,
-            &self.blob_refs,
-            &self.content,
-            &self.previews,
-            &self.patches,
-        );
-        let removed = trees
+        let _files = self.file_lock.lock().expect("never poisoned");
+        let released = RefCell::new(Vec::new());
+        let removed = self
+            .model_trees()
             .transaction(|view| {
+                released.borrow_mut().clear();
                 let Some(bytes) = view.0.get(id.as_bytes())? else {
                     return Ok(None);
                 };
                 let old = decode_record(id.as_bytes(), &bytes)
                     .map_err(ConflictableTransactionError::Abort)?;
-                unlink(view, &old)?;
+                unlink(view, &old, &released)?;
                 Ok(Some(old))
             })
             .map_err(transaction_error)?;
         self.db.flush()?;
+        self.remove_files(&released.into_inner());
         Ok(removed)
     }
 
