@@ -8,7 +8,7 @@
 //! in the input instead of growing with the number of collapses.
 
 use glam::DVec3;
-use meshopt::SimplifyOptions;
+use meshopt::{SimplifyOptions, VertexDataAdapter};
 
 use super::weld::compact;
 
@@ -22,22 +22,16 @@ pub fn simplify(
     if positions.len() <= max_vertices {
         return None;
     }
-    let pre_passed;
-    let input = match Input::new(positions, triangles).clustered(PRE_PASS_FACTOR * 2 * max_vertices)
-    {
-        Some(smaller) => {
-            pre_passed = smaller;
-            Input::new(positions, &pre_passed)
-        }
-        None => Input::new(positions, triangles),
-    };
+    let input = Input::new(positions);
+    let pre_passed = input.clustered(triangles, PRE_PASS_FACTOR * 2 * max_vertices);
+    let triangles = pre_passed.as_deref().unwrap_or(triangles);
     // meshoptimizer targets an index count; vertices follow triangles roughly 1:2, so aim in
     // proportion and tighten until the vertex bound holds (it converges in one or two rounds).
-    let mut target = (input.indices.len() as f64 * max_vertices as f64
-        / input.vertex_count().max(1) as f64) as usize;
+    let mut target = (3.0 * triangles.len() as f64 * max_vertices as f64
+        / vertex_count(triangles, positions.len()).max(1) as f64) as usize;
     let mut best = None;
     for _ in 0..8 {
-        let (p, t) = input.collapse(target);
+        let (p, t) = input.collapse(triangles, target);
         let within = p.len() <= max_vertices;
         let count = p.len();
         best = Some((p, t));
@@ -60,7 +54,7 @@ pub fn simplify_to_triangles(
     if triangles.len() <= max_triangles {
         return compact(positions, triangles);
     }
-    Input::new(positions, triangles).collapse(3 * max_triangles)
+    Input::new(positions).collapse(triangles, 3 * max_triangles)
 }
 
 /// The triangles left by collapsing edges down to at most `max_triangles`, over the input's
@@ -73,48 +67,51 @@ pub fn collapsed_triangles(
     if triangles.len() <= max_triangles {
         return triangles.to_vec();
     }
-    Input::new(positions, triangles).kept(3 * max_triangles)
+    Input::new(positions).kept(triangles, 3 * max_triangles)
 }
 
 /// How many times the target's triangles the sloppy pre-pass leaves: enough that the edge
 /// collapses, which decide the final shape, still choose among many candidates.
 const PRE_PASS_FACTOR: usize = 40;
 
-/// A mesh in meshoptimizer's form.
+/// Vertices the triangles use.
+fn vertex_count(triangles: &[[u32; 3]], vertices: usize) -> usize {
+    let mut used = vec![false; vertices];
+    for &i in triangles.iter().flatten() {
+        used[i as usize] = true;
+    }
+    used.into_iter().filter(|&u| u).count()
+}
+
+/// The vertices in meshoptimizer's form; triangles are passed to it as they are (a print
+/// file's are not copied).
 struct Input<'a> {
     positions: &'a [DVec3],
     points: Vec<[f32; 3]>,
-    indices: Vec<u32>,
 }
 
 impl<'a> Input<'a> {
-    fn new(positions: &'a [DVec3], triangles: &[[u32; 3]]) -> Self {
+    fn new(positions: &'a [DVec3]) -> Self {
         Self {
             positions,
             points: positions.iter().map(|p| p.as_vec3().to_array()).collect(),
-            indices: triangles.iter().flatten().copied().collect(),
         }
     }
 
-    /// Vertices the triangles use.
-    fn vertex_count(&self) -> usize {
-        let mut used = vec![false; self.points.len()];
-        for &i in &self.indices {
-            used[i as usize] = true;
-        }
-        used.into_iter().filter(|&u| u).count()
+    fn vertices(&self) -> VertexDataAdapter<'_> {
+        VertexDataAdapter::new(bytemuck::cast_slice(&self.points), 12, 0).expect("packed positions")
     }
 
     /// The triangles left by clustering down to about `max_triangles` (sloppy simplification:
     /// linear in the input), over the input's vertices; `None` when there are not many more
     /// than that already.
-    fn clustered(&self, max_triangles: usize) -> Option<Vec<[u32; 3]>> {
-        if self.indices.len() / 3 <= 2 * max_triangles {
+    fn clustered(&self, triangles: &[[u32; 3]], max_triangles: usize) -> Option<Vec<[u32; 3]>> {
+        if triangles.len() <= 2 * max_triangles {
             return None;
         }
-        let kept = meshopt::simplify_sloppy_decoder(
-            &self.indices,
-            &self.points,
+        let kept = meshopt::simplify_sloppy(
+            bytemuck::cast_slice(triangles),
+            &self.vertices(),
             3 * max_triangles,
             f32::MAX,
             None,
@@ -124,15 +121,15 @@ impl<'a> Input<'a> {
 
     /// Quadric edge collapses down to `target` indices (no error bound), unused vertices
     /// dropped.
-    fn collapse(&self, target: usize) -> (Vec<DVec3>, Vec<[u32; 3]>) {
-        compact(self.positions, &self.kept(target))
+    fn collapse(&self, triangles: &[[u32; 3]], target: usize) -> (Vec<DVec3>, Vec<[u32; 3]>) {
+        compact(self.positions, &self.kept(triangles, target))
     }
 
     /// The triangles left, over the input's vertices.
-    fn kept(&self, target: usize) -> Vec<[u32; 3]> {
-        let kept = meshopt::simplify_decoder(
-            &self.indices,
-            &self.points,
+    fn kept(&self, triangles: &[[u32; 3]], target: usize) -> Vec<[u32; 3]> {
+        let kept = meshopt::simplify(
+            bytemuck::cast_slice(triangles),
+            &self.vertices(),
             target.max(3),
             f32::MAX,
             SimplifyOptions::None,

@@ -11,8 +11,6 @@
 //! every pair within it in the 27 cells around a point, which is all a weld needs, and a
 //! union–find with the smallest member as root makes the result independent of input order.
 
-use rustc_hash::FxHashMap;
-
 use glam::DVec3;
 
 use super::RawMesh;
@@ -48,21 +46,15 @@ pub fn weld(raw: &RawMesh, tolerance: f64) -> Result<Welded> {
     let root = merge_close(&raw.positions, &keys, (min, max), tolerance * diagonal);
 
     // Canonical vertex order: along a Morton (Z-order) curve, so that vertices near in space
-    // are near in memory (extraction walks neighbourhoods), then by exact coordinates. Keys
-    // are computed once, not per comparison: this is the big meshes' hot loop.
-    let mut ordered: Vec<(u64, [u64; 3], u32)> = (0..raw.positions.len() as u32)
+    // are near in memory (extraction walks neighbourhoods), then by exact coordinates (keys
+    // computed once: a big mesh's hot loop).
+    let mut ordered: Vec<(u64, u32)> = (0..raw.positions.len() as u32)
         .filter(|&i| root[i as usize] == i)
-        .map(|i| {
-            (
-                morton(raw.positions[i as usize], min, max),
-                keys[i as usize],
-                i,
-            )
-        })
+        .map(|i| (morton(raw.positions[i as usize], min, max), i))
         .collect();
-    ordered.sort_unstable();
+    ordered.sort_unstable_by(|&(m, i), &(n, j)| (m, keys[i as usize]).cmp(&(n, keys[j as usize])));
     drop(keys);
-    let kept: Vec<u32> = ordered.into_iter().map(|(_, _, i)| i).collect();
+    let kept: Vec<u32> = ordered.into_iter().map(|(_, i)| i).collect();
     let mut slot = vec![0u32; raw.positions.len()];
     for (new, &old) in kept.iter().enumerate() {
         slot[old as usize] = new as u32;
@@ -93,16 +85,13 @@ pub fn weld(raw: &RawMesh, tolerance: f64) -> Result<Welded> {
     }
 
     // Duplicates: same vertex set. Keep the first in input order (a stable sort keeps it first).
+    // Sorted as indices, four bytes a triangle: a print file has millions.
     let before = triangles.len();
-    let mut indexed: Vec<([u32; 3], u32, [u32; 3])> = triangles
-        .into_iter()
-        .enumerate()
-        .map(|(i, t)| (sorted(t), i as u32, t))
-        .collect();
-    indexed.sort_unstable();
-    indexed.dedup_by_key(|(set, _, _)| *set);
-    let duplicates_removed = before - indexed.len();
-    let triangles: Vec<[u32; 3]> = indexed.into_iter().map(|(_, _, t)| t).collect();
+    let mut order: Vec<u32> = (0..before as u32).collect();
+    order.sort_unstable_by_key(|&i| (sorted(triangles[i as usize]), i));
+    order.dedup_by_key(|i| sorted(triangles[*i as usize]));
+    let duplicates_removed = before - order.len();
+    let triangles: Vec<[u32; 3]> = order.into_iter().map(|i| triangles[i as usize]).collect();
 
     let (positions, triangles) = compact(&positions, &triangles);
     if positions.len() < 4 {
@@ -146,40 +135,47 @@ fn merge_close(
     order.sort_unstable_by(|&a, &b| {
         (cell(a), keys[a as usize], a).cmp(&(cell(b), keys[b as usize], b))
     });
-    let mut runs: FxHashMap<u64, (u32, u32)> = FxHashMap::default();
-    runs.reserve(points.len());
-    let mut start = 0u32;
-    for run in order.chunk_by(|&a, &b| cell(a) == cell(b)) {
-        runs.insert(cell(run[0]), (start, run.len() as u32));
-        start += run.len() as u32;
+    // Each run of one cell: its cell and where it starts in `order` (in cell order).
+    let mut runs: Vec<(u64, u32)> = Vec::with_capacity(points.len() + 1);
+    for (at, &i) in order.iter().enumerate() {
+        if runs.last().is_none_or(|&(c, _)| c != cell(i)) {
+            runs.push((cell(i), at as u32));
+        }
     }
+    runs.push((u64::MAX, order.len() as u32));
+    let run = |r: usize| &order[runs[r].1 as usize..runs[r + 1].1 as usize];
 
+    // The 13 neighbours that follow a cell in (x, y, z) order lie at fixed positive offsets
+    // in packed order, so each is found by a pointer that only moves forward: linear, and no
+    // table of cells.
+    let offsets = FORWARD.map(|(dx, dy, dz)| (dx << 42) + (dy << 21) + dz);
+    let mut pointers = [0usize; 13];
     let mut groups = UnionFind::new(keys);
-    for run in order.chunk_by(|&a, &b| cell(a) == cell(b)) {
-        for pair in run.windows(2) {
+    for r in 0..runs.len() - 1 {
+        let here = run(r);
+        for pair in here.windows(2) {
             groups.union(pair[0], pair[1]);
         }
-        let packed = cell(run[0]);
-        // Each pair of neighbouring cells once: the 13 neighbours that follow in (x, y, z) order.
-        for (dx, dy, dz) in FORWARD {
-            let neighbour = packed
-                .wrapping_add_signed(dx << 42)
-                .wrapping_add_signed(dy << 21)
-                .wrapping_add_signed(dz);
-            let Some(&(at, len)) = runs.get(&neighbour) else {
+        let packed = runs[r].0;
+        for (pointer, &offset) in pointers.iter_mut().zip(&offsets) {
+            let neighbour = packed.wrapping_add_signed(offset);
+            while runs[*pointer].0 < neighbour {
+                *pointer += 1;
+            }
+            if runs[*pointer].0 != neighbour {
                 continue;
-            };
-            let other = &order[at as usize..(at + len) as usize];
+            }
+            let other = run(*pointer);
             // Neighbouring cells crowded enough to make the pairwise test slow lie within
             // two cell diagonals of each other: merged without it.
-            let close = run.len() * other.len() > MAX_PAIRS
-                || run.iter().any(|&a| {
+            let close = here.len() * other.len() > MAX_PAIRS
+                || here.iter().any(|&a| {
                     other.iter().any(|&b| {
                         points[a as usize].distance_squared(points[b as usize]) <= quantum * quantum
                     })
                 });
             if close {
-                groups.union(run[0], other[0]);
+                groups.union(here[0], other[0]);
             }
         }
     }
@@ -265,7 +261,7 @@ pub fn compact(positions: &[DVec3], triangles: &[[u32; 3]]) -> (Vec<DVec3>, Vec<
         }
     }
     let mut remap = vec![u32::MAX; positions.len()];
-    let mut kept = Vec::new();
+    let mut kept = Vec::with_capacity(used.iter().filter(|&&u| u).count());
     for (i, p) in positions.iter().enumerate() {
         if used[i] {
             remap[i] = kept.len() as u32;

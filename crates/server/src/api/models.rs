@@ -125,6 +125,9 @@ pub async fn add_model(
     }
     let models = app.catalog.put(record.clone(), row);
     app.set_model_count(models);
+    // The upload is let go before the background patches read it again from the store: a
+    // print file of hundreds of megabytes is not held twice.
+    drop(upload);
     app.patcher.stored(record.id.clone());
     let status = if previous.is_some() {
         StatusCode::OK

@@ -165,8 +165,7 @@ async fn body_bytes(request: Request, limit: usize) -> Result<Bytes, AppError> {
     let mut buffer = Vec::with_capacity(declared.unwrap_or(0));
     let mut body = request.into_body();
     while let Some(frame) = body.frame().await {
-        let frame =
-            frame.map_err(|e| AppError::bad_request("invalid_body", e.to_string()))?;
+        let frame = frame.map_err(|e| AppError::bad_request("invalid_body", e.to_string()))?;
         if let Ok(data) = frame.into_data() {
             if buffer.len() + data.len() > limit {
                 return Err(too_large());
