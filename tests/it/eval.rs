@@ -328,7 +328,7 @@ fn robustness_of_a_star() {
 #[test]
 fn render_marks_salient_points_in_red() {
     let params = Params::default();
-    let extraction = extract(&shapes::star(4, &shapes::five_tips()), &params).unwrap();
+    let extraction = extract(shapes::star(4, &shapes::five_tips()), &params).unwrap();
     let (points, _) = detect(&extraction, &params);
     let cameras = Camera::around();
     let picture = render(&extraction, &points, &cameras, 200);

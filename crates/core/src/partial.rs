@@ -152,7 +152,10 @@ impl Target {
 
 /// The stored patches of a model's upload ([`Layout::STORED`]), prepared as extraction
 /// prepares it (SPEC §1).
-pub fn stored_patches(raw: &RawMesh, params: &MeshParams) -> Result<Packed> {
+pub fn stored_patches<'a>(
+    raw: impl Into<std::borrow::Cow<'a, RawMesh>>,
+    params: &MeshParams,
+) -> Result<Packed> {
     let mesh = prepare(raw, params)?;
     Ok(Packed::of(&Patches::compute(
         &mesh.positions,

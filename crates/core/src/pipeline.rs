@@ -4,6 +4,8 @@
 //! Callers that need only the first stages (pictures, the parameter study) stop at
 //! [`extract`] and go on with [`describe`].
 
+use std::borrow::Cow;
+
 use std::path::Path;
 use std::time::Instant;
 
@@ -33,8 +35,9 @@ pub fn extract_path(path: &Path, params: &Params, limits: &Limits) -> Result<Ext
     Ok(extraction)
 }
 
-/// Prepares `raw` (SPEC §1) and computes the ECC of every vertex (SPEC §2).
-pub fn extract(raw: &RawMesh, params: &Params) -> Result<Extraction> {
+/// Prepares `raw` (SPEC §1) and computes the ECC of every vertex (SPEC §2); given by value, the
+/// loaded mesh is let go once welded.
+pub fn extract<'a>(raw: impl Into<Cow<'a, RawMesh>>, params: &Params) -> Result<Extraction> {
     let clock = Instant::now();
     let (mesh, topology, mut stats) = prepare(raw, params)?;
     let ecc = ecc::compute(&mesh, &topology, &params.ecc);
@@ -70,21 +73,24 @@ pub fn signature_of_file(
 ) -> Result<Signature> {
     let raw = mesh::load_bytes(bytes, format, resources, limits)?;
     let signature = match extent {
-        Extent::Full => compute(&raw, params)?,
-        Extent::Global => compute_global(&raw, params)?,
+        Extent::Full => describe(&extract(raw, params)?, params),
+        Extent::Global => compute_global(raw, params)?,
     };
     Signature::from_bytes(&signature.to_bytes())
 }
 
 /// The global descriptors of a loaded mesh ([`Extent::Global`]): no ECC, no features.
-pub fn compute_global(raw: &RawMesh, params: &Params) -> Result<Signature> {
+pub fn compute_global<'a>(raw: impl Into<Cow<'a, RawMesh>>, params: &Params) -> Result<Signature> {
     let (mesh, topology, stats) = prepare(raw, params)?;
     Ok(global_descriptors(&mesh, &topology, params, stats))
 }
 
 /// What every extraction starts with: the parameters checked, the mesh prepared (SPEC §1)
 /// and its edge graph, with their statistics (no ECC yet).
-fn prepare(raw: &RawMesh, params: &Params) -> Result<(PreparedMesh, Topology, ExtractionStats)> {
+fn prepare<'a>(
+    raw: impl Into<Cow<'a, RawMesh>>,
+    params: &Params,
+) -> Result<(PreparedMesh, Topology, ExtractionStats)> {
     params.validate()?;
     let clock = Instant::now();
     let mesh = mesh::prepare(raw, &params.mesh)?;

@@ -45,3 +45,17 @@ pub struct RawMesh {
     pub positions: Vec<DVec3>,
     pub triangles: Vec<[u32; 3]>,
 }
+
+/// Meshes are passed on borrowed, or by value where the callee may let them go early
+/// ([`prepare`]): a print file's millions of triangles.
+impl<'a> From<&'a RawMesh> for std::borrow::Cow<'a, RawMesh> {
+    fn from(mesh: &'a RawMesh) -> Self {
+        std::borrow::Cow::Borrowed(mesh)
+    }
+}
+
+impl From<RawMesh> for std::borrow::Cow<'_, RawMesh> {
+    fn from(mesh: RawMesh) -> Self {
+        std::borrow::Cow::Owned(mesh)
+    }
+}

@@ -1,5 +1,7 @@
 //! The preparation pipeline of SPEC §1: weld → orient → simplify → normalise.
 
+use std::borrow::Cow;
+
 use std::time::Instant;
 
 use glam::DVec3;
@@ -51,15 +53,18 @@ pub struct PrepareStats {
     pub normalise_seconds: f64,
 }
 
-/// Runs SPEC §1.2–1.5 on a loaded mesh.
-pub fn prepare(raw: &RawMesh, params: &MeshParams) -> Result<PreparedMesh> {
+/// Runs SPEC §1.2–1.5 on a loaded mesh. A mesh given by value is let go once it is welded: a
+/// print file's millions of triangles are not kept through the rest.
+pub fn prepare<'a>(raw: impl Into<Cow<'a, RawMesh>>, params: &MeshParams) -> Result<PreparedMesh> {
+    let raw = raw.into();
     let mut stats = PrepareStats {
         input_vertices: raw.positions.len(),
         input_triangles: raw.triangles.len(),
         ..Default::default()
     };
     let clock = Instant::now();
-    let welded = weld(raw, params.weld_tolerance)?;
+    let welded = weld(&raw, params.weld_tolerance)?;
+    drop(raw);
     stats.weld_seconds = clock.elapsed().as_secs_f64();
     stats.welded_vertices = welded.positions.len();
     stats.degenerate_triangles_removed = welded.degenerate_removed;

@@ -42,18 +42,16 @@ pub fn weld(raw: &RawMesh, tolerance: f64) -> Result<Welded> {
     if !(1e-100..=1e100).contains(&diagonal) {
         return Err(Error::ExtentOutOfRange { diagonal });
     }
-    let keys: Vec<[u64; 3]> = raw.positions.iter().map(|&p| coordinate_key(p)).collect();
-    let root = merge_close(&raw.positions, &keys, (min, max), tolerance * diagonal);
+    let root = merge_close(&raw.positions, (min, max), tolerance * diagonal);
+    let key = |i: u32| coordinate_key(raw.positions[i as usize]);
 
     // Canonical vertex order: along a Morton (Z-order) curve, so that vertices near in space
-    // are near in memory (extraction walks neighbourhoods), then by exact coordinates (keys
-    // computed once: a big mesh's hot loop).
+    // are near in memory (extraction walks neighbourhoods), then by exact coordinates.
     let mut ordered: Vec<(u64, u32)> = (0..raw.positions.len() as u32)
         .filter(|&i| root[i as usize] == i)
         .map(|i| (morton(raw.positions[i as usize], min, max), i))
         .collect();
-    ordered.sort_unstable_by(|&(m, i), &(n, j)| (m, keys[i as usize]).cmp(&(n, keys[j as usize])));
-    drop(keys);
+    ordered.sort_unstable_by_key(|&(m, i)| (m, key(i)));
     let kept: Vec<u32> = ordered.into_iter().map(|(_, i)| i).collect();
     let mut slot = vec![0u32; raw.positions.len()];
     for (new, &old) in kept.iter().enumerate() {
@@ -111,12 +109,7 @@ pub fn weld(raw: &RawMesh, tolerance: f64) -> Result<Welded> {
 /// [`coordinate_key`] order. Two vertices are merged when they lie within `quantum` of each
 /// other, or in the same cell of the grid of side `quantum` anchored at `min` (so a weld is
 /// linear in the vertex count whatever the input: no cell is compared with itself pairwise).
-fn merge_close(
-    points: &[DVec3],
-    keys: &[[u64; 3]],
-    (min, max): (DVec3, DVec3),
-    quantum: f64,
-) -> Vec<u32> {
+fn merge_close(points: &[DVec3], (min, max): (DVec3, DVec3), quantum: f64) -> Vec<u32> {
     // Cells packed in a u64, 21 bits an axis (x highest, so the packed order is (x, y, z)
     // order), one cell of margin on each side for the neighbours. A grid finer than that (a
     // tolerance below ~5e-7 of the extent) is coarsened to it: pairs are still found, and
@@ -133,7 +126,8 @@ fn merge_close(
     let cell = |i: u32| cells[i as usize];
     let mut order: Vec<u32> = (0..points.len() as u32).collect();
     order.sort_unstable_by(|&a, &b| {
-        (cell(a), keys[a as usize], a).cmp(&(cell(b), keys[b as usize], b))
+        let key = |i: u32| coordinate_key(points[i as usize]);
+        (cell(a), key(a), a).cmp(&(cell(b), key(b), b))
     });
     // Each run of one cell: its cell and where it starts in `order` (in cell order).
     let mut runs: Vec<(u64, u32)> = Vec::with_capacity(points.len() + 1);
@@ -150,7 +144,7 @@ fn merge_close(
     // table of cells.
     let offsets = FORWARD.map(|(dx, dy, dz)| (dx << 42) + (dy << 21) + dz);
     let mut pointers = [0usize; 13];
-    let mut groups = UnionFind::new(keys);
+    let mut groups = UnionFind::new(points);
     for r in 0..runs.len() - 1 {
         let here = run(r);
         for pair in here.windows(2) {
@@ -206,15 +200,14 @@ const FORWARD: [(i64, i64, i64); 13] = [
 /// (ties by index), so the groups' representatives do not depend on the order of union.
 struct UnionFind<'a> {
     parent: Vec<u32>,
-    /// Each vertex's [`coordinate_key`].
-    keys: &'a [[u64; 3]],
+    points: &'a [DVec3],
 }
 
 impl<'a> UnionFind<'a> {
-    fn new(keys: &'a [[u64; 3]]) -> Self {
+    fn new(points: &'a [DVec3]) -> Self {
         Self {
-            parent: (0..keys.len() as u32).collect(),
-            keys,
+            parent: (0..points.len() as u32).collect(),
+            points,
         }
     }
 
@@ -229,7 +222,7 @@ impl<'a> UnionFind<'a> {
 
     fn union(&mut self, a: u32, b: u32) {
         let (a, b) = (self.find(a), self.find(b));
-        let key = |i: u32| (self.keys[i as usize], i);
+        let key = |i: u32| (coordinate_key(self.points[i as usize]), i);
         match key(a).cmp(&key(b)) {
             std::cmp::Ordering::Less => self.parent[b as usize] = a,
             std::cmp::Ordering::Greater => self.parent[a as usize] = b,

@@ -158,7 +158,9 @@ async fn make(app: &Arc<App>, id: &ModelId) -> bool {
                 &upload.resources,
                 &Limits::unlimited(),
             )?;
-            stored_patches(&raw, &mesh)
+            // Neither the file nor the loaded mesh is kept longer than it is needed.
+            drop(upload);
+            stored_patches(raw, &mesh)
         })
         .await;
     let Ok(Ok(packed)) = made else {
