@@ -144,7 +144,7 @@ fn is_archive(named: Option<&str>, media_type: &str, body: &[u8]) -> bool {
                 media_type,
                 "application/zip" | "application/x-zip-compressed"
             ) || (archive::is_zip(body)
-                && Format::sniff(body).is_none()
+                && Format::sniff(body) != Some(Format::ThreeMf)
                 && mesh::unsupported(body, None).is_none())
         }
     }

@@ -217,15 +217,17 @@ pub fn load_path(path: &Path, limits: &Limits) -> Result<RawMesh> {
         source,
     })?;
     let name = path.file_name().and_then(|n| n.to_str());
-    let format = match Format::from_path(path).or_else(|| Format::sniff(&bytes)) {
+    let format = match Format::from_path(path) {
         Some(format) => format,
-        None => match unsupported(&bytes, name) {
-            Some(error) => return Err(error),
-            None if archive::is_zip(&bytes) => {
+        None => match (unsupported(&bytes, name), Format::sniff(&bytes)) {
+            (Some(error), _) => return Err(error),
+            // A zip is an archive of a mesh, unless it is a 3MF package.
+            (None, sniffed) if archive::is_zip(&bytes) && sniffed != Some(Format::ThreeMf) => {
                 let unpacked = archive::unpack(&bytes, limits)?;
                 return load_bytes(&unpacked.mesh, unpacked.format, &unpacked.resources, limits);
             }
-            None => return Err(Error::UnknownFormat(path.display().to_string())),
+            (None, Some(format)) => format,
+            (None, None) => return Err(Error::UnknownFormat(path.display().to_string())),
         },
     };
     let dir = path.parent().unwrap_or(Path::new(".")).to_path_buf();
