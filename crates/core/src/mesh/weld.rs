@@ -82,7 +82,7 @@ pub fn weld(raw: &RawMesh, tolerance: f64) -> Result<Welded> {
         });
     }
 
-    // Duplicates: same vertex set. Keep the first in input order (a stable sort keeps it first).
+    // Duplicates: same vertex set. Keep the first in input order (the index breaks ties).
     // Sorted as indices, four bytes a triangle: a print file has millions.
     let before = triangles.len();
     let mut order: Vec<u32> = (0..before as u32).collect();
