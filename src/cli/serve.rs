@@ -23,7 +23,8 @@ pub struct Args {
     #[arg(long, env = "SALIENT_DATA")]
     data: Option<PathBuf>,
     /// Folder of the ranking index's file of light field descriptors (made again at each
-    /// start; on a disk, not a memory file system). Default: the store's folder.
+    /// start) and of upload bodies over 16 MiB while they are read; on a disk, not a memory
+    /// file system. Default: the store's folder.
     #[arg(long, env = "SALIENT_SHELF_DIR")]
     shelf_dir: Option<PathBuf>,
     /// TOML configuration file (every field of the server configuration).

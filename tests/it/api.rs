@@ -7,6 +7,7 @@ use axum::body::Bytes;
 use axum::http::StatusCode;
 use salient_server::api::Config;
 use salient_server::model::{ModelId, ModelRecord, Upload};
+use salient_server::spool::SPOOL_BYTES;
 use salient_server::store::{Derived, InMemoryStore, Loaded, Store, StoreError, StoreResult};
 use serde_json::Value;
 
@@ -872,6 +873,41 @@ async fn internal_errors_say_nothing_of_their_detail() {
 
 /// The original files come back byte for byte, with their type, `ETag` and name; a client
 /// holding the current copy gets a 304.
+/// A body past the spool threshold, raw or in a form, is read through its spool
+/// (`salient_server::spool`): stored byte for byte, and extracted as the same mesh sent small.
+#[tokio::test]
+async fn a_body_past_the_spool_threshold_is_stored_and_extracted() {
+    let app = TestApp::new();
+    let horse = fixture("capod_horse_m155.obj");
+    let mut padded = vec![b'#'; SPOOL_BYTES];
+    padded.push(b'\n');
+    padded.extend_from_slice(&horse);
+    let added = app.add("id=raw", "model/obj", padded.clone()).await;
+    assert_eq!(added.status, StatusCode::CREATED, "{}", added.text());
+    let form = Form::new().file("file", "padded.obj", padded.clone());
+    let added = app.post("/v1/models?id=form").multipart(form).send().await;
+    assert_eq!(added.status, StatusCode::CREATED, "{}", added.text());
+    let added = app.add("id=small", "model/obj", horse).await;
+    assert_eq!(added.status, StatusCode::CREATED, "{}", added.text());
+
+    let geometry = |mut signature: Value| {
+        signature.as_object_mut().unwrap().remove("stats");
+        signature
+    };
+    let small = geometry(app.get_json("/v1/models/small/signature").await);
+    for id in ["raw", "form"] {
+        let file = app.get(format!("/v1/models/{id}/file")).send().await;
+        assert!(file.body == padded, "{id}: the stored file differs");
+        let record = app.get_json(&format!("/v1/models/{id}")).await;
+        assert_eq!(
+            record["content_hash"],
+            salient_server::model::sha256_hex(&padded)
+        );
+        let signature = app.get_json(&format!("/v1/models/{id}/signature")).await;
+        assert_eq!(geometry(signature), small, "{id}");
+    }
+}
+
 #[tokio::test]
 async fn original_files_come_back_byte_for_byte() {
     let app = TestApp::new();

@@ -71,7 +71,14 @@ pub fn signature_of_file(
     (params, extent): (&Params, Extent),
     limits: &Limits,
 ) -> Result<Signature> {
-    let raw = mesh::load_bytes(bytes, format, resources, limits)?;
+    signature_of_mesh(
+        mesh::load_bytes(bytes, format, resources, limits)?,
+        (params, extent),
+    )
+}
+
+/// [`signature_of_file`] of a loaded mesh, which is let go once welded.
+pub fn signature_of_mesh(raw: RawMesh, (params, extent): (&Params, Extent)) -> Result<Signature> {
     let signature = match extent {
         Extent::Full => describe(&extract(raw, params)?, params),
         Extent::Global => compute_global(raw, params)?,

@@ -11,6 +11,7 @@ use salient_core::display::UpAxis;
 use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
 
+use crate::spool::Spool;
 use salient_core::mesh::Format;
 use salient_core::signature::Signature;
 
@@ -102,13 +103,22 @@ pub fn sha256_hex(bytes: &[u8]) -> String {
 
 /// The files of an upload: a mesh and, for a `.gltf`, the resources it references. The
 /// content hash is computed once, when the upload is made.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone)]
 pub struct Upload {
     pub format: Format,
     pub mesh: Bytes,
     /// glTF resources by the URI the document uses.
     pub resources: BTreeMap<String, Bytes>,
     content_hash: String,
+    /// The file behind `mesh`, when its body was spooled.
+    spool: Option<Spool>,
+}
+
+/// Uploads are equal when their files are (a spool is where the bytes are, not what).
+impl PartialEq for Upload {
+    fn eq(&self, other: &Self) -> bool {
+        (self.format, &self.mesh, &self.resources) == (other.format, &other.mesh, &other.resources)
+    }
 }
 
 impl Upload {
@@ -125,6 +135,20 @@ impl Upload {
             mesh,
             resources,
             content_hash,
+            spool: None,
+        }
+    }
+
+    /// This upload, whose mesh is the bytes of `spool` ([`crate::spool`]).
+    pub fn in_spool(self, spool: Option<Spool>) -> Self {
+        Self { spool, ..self }
+    }
+
+    /// Lets the pages of a spooled mesh go from resident memory (once it is loaded: the
+    /// extraction that follows needs the memory more).
+    pub fn release_pages(&self) {
+        if let Some(spool) = &self.spool {
+            spool.release_pages();
         }
     }
 

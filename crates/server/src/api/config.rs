@@ -18,7 +18,8 @@ pub struct Config {
     /// Folder of the sled store.
     pub data: PathBuf,
     /// Folder of the ranking index's file of light field descriptors, kept out of memory and
-    /// made again at each start (`rank::shelf`); a disk, not a memory file system. Default:
+    /// made again at each start (`rank::shelf`), and of upload bodies over 16 MiB while they
+    /// are read and extracted ([`crate::spool`]); a disk, not a memory file system. Default:
     /// `data` when serving from a store there, else the system's temporary folder.
     pub shelf_dir: Option<PathBuf>,
     /// Largest request body in bytes of every request but adding a model (searches, checks,
@@ -126,6 +127,11 @@ pub enum ConfigError {
 }
 
 impl Config {
+    /// Where large upload bodies are spooled: [`Config::shelf_dir`]'s folder.
+    pub fn spool_dir(&self) -> PathBuf {
+        self.shelf_dir.clone().unwrap_or_else(std::env::temp_dir)
+    }
+
     /// Defaults overlaid with `file` (TOML), if given.
     pub fn load(file: Option<&Path>) -> Result<Self, ConfigError> {
         let Some(path) = file else {

@@ -14,6 +14,7 @@ use serde::Serialize;
 
 use super::evidence::DuplicateMatch;
 use crate::model::InvalidId;
+use crate::spool::CollectError;
 use crate::store::StoreError;
 
 /// Everything a request can fail with.
@@ -239,6 +240,16 @@ fn rejection(status: StatusCode, code: &'static str, message: String) -> AppErro
         AppError::UnsupportedMediaType(message)
     } else {
         AppError::bad_request(code, message)
+    }
+}
+
+impl From<CollectError> for AppError {
+    fn from(e: CollectError) -> Self {
+        match e {
+            CollectError::TooLarge => AppError::PayloadTooLarge(BODY_LIMIT.to_string()),
+            // By its kind only: the text may name the spool's folder.
+            CollectError::Spool(e) => AppError::Internal(format!("spooling a body: {}", e.kind())),
+        }
     }
 }
 

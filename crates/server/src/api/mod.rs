@@ -49,8 +49,9 @@ use error::AppError;
 use metrics::{Metrics, RequestLabels};
 use pool::Pool;
 pub use reindex::{ReindexProgress, ReindexState};
+use salient_core::mesh::load_bytes;
 use salient_core::mesh::Format;
-use salient_core::pipeline::{signature_of_file, Extent};
+use salient_core::pipeline::{signature_of_mesh, Extent};
 use salient_core::signature::{Signature, Staleness};
 
 /// Shared state of the service (`AppState(Arc<App>)`, as crates.io does it).
@@ -341,13 +342,9 @@ impl App {
         let signature = self
             .pool
             .run(move || {
-                signature_of_file(
-                    &upload.mesh,
-                    upload.format,
-                    &upload.resources,
-                    (&params, extent),
-                    &limits,
-                )
+                let raw = load_bytes(&upload.mesh, upload.format, &upload.resources, &limits)?;
+                upload.release_pages();
+                signature_of_mesh(raw, (&params, extent))
             })
             .await??;
         self.metrics

@@ -3,6 +3,7 @@
 
 use std::collections::BTreeMap;
 use std::path::Path;
+use std::sync::Arc;
 
 use axum::body::Bytes;
 use axum::extract::{DefaultBodyLimit, FromRequest, Multipart, Request};
@@ -13,6 +14,7 @@ use serde::Deserialize;
 use super::error::{AppError, BODY_LIMIT, UPLOAD_LIMIT};
 use super::AppState;
 use crate::model::{Fields, ModelId, Upload};
+use crate::spool::{Body, CollectError, Collector};
 use salient_core::display::UpAxis;
 use salient_core::mesh::load::archive;
 use salient_core::mesh::{self, Format};
@@ -150,30 +152,26 @@ fn is_archive(named: Option<&str>, media_type: &str, body: &[u8]) -> bool {
     }
 }
 
-/// A raw upload's body in one buffer of its declared length, refused past `limit`: axum's
+/// A raw upload's body, refused past `limit`: in one buffer of its declared length (axum's
 /// `Bytes` extractor gathers the chunks and then copies them into one buffer, which holds a
-/// 200 MB print file twice (`benches/big.rs`).
-async fn body_bytes(request: Request, limit: usize) -> Result<Bytes, AppError> {
-    let too_large = || AppError::PayloadTooLarge(BODY_LIMIT.into());
+/// 200 MB print file twice), or past [`crate::spool::SPOOL_BYTES`] in a spool.
+async fn body_bytes(request: Request, limit: usize, state: &AppState) -> Result<Body, AppError> {
     let declared = request
         .headers()
         .get(CONTENT_LENGTH)
         .and_then(|v| v.to_str().ok()?.parse::<usize>().ok());
     if declared.is_some_and(|n| n > limit) {
-        return Err(too_large());
+        return Err(CollectError::TooLarge.into());
     }
-    let mut buffer = Vec::with_capacity(declared.unwrap_or(0));
+    let mut collector = Collector::new(declared, limit, state.config.spool_dir().into());
     let mut body = request.into_body();
     while let Some(frame) = body.frame().await {
         let frame = frame.map_err(|e| AppError::bad_request("invalid_body", e.to_string()))?;
         if let Ok(data) = frame.into_data() {
-            if buffer.len() + data.len() > limit {
-                return Err(too_large());
-            }
-            buffer.extend_from_slice(&data);
+            collector.push(&data).await?;
         }
     }
-    Ok(Bytes::from(buffer))
+    Ok(collector.finish().await?)
 }
 
 /// The mesh and resources of a zip archive ([`archive::unpack`]), as an upload.
@@ -244,9 +242,10 @@ impl MeshUpload {
             let multipart = Multipart::from_request(request, state)
                 .await
                 .map_err(|r| AppError::bad_request("invalid_multipart", r.body_text()))?;
-            return from_multipart(multipart, query, &limits).await;
+            return from_multipart(multipart, query, &limits, state.config.spool_dir().into())
+                .await;
         }
-        let body = body_bytes(request, body_limit).await?;
+        let Body { bytes: body, spool } = body_bytes(request, body_limit, state).await?;
         if body.is_empty() {
             return Err(AppError::bad_request(
                 "empty_body",
@@ -289,7 +288,7 @@ impl MeshUpload {
             }
         };
         Ok(MeshUpload {
-            upload: Upload::new(format, body, BTreeMap::new()),
+            upload: Upload::new(format, body, BTreeMap::new()).in_spool(spool),
             fields,
         })
     }
@@ -304,10 +303,11 @@ async fn from_multipart(
     mut multipart: Multipart,
     mut fields: ModelFields,
     limits: &Limits,
+    spool_dir: Arc<Path>,
 ) -> Result<MeshUpload, AppError> {
-    // Every file, in order: (field name, file name, bytes).
-    let mut files: Vec<(String, String, Bytes)> = Vec::new();
-    while let Some(field) = multipart.next_field().await? {
+    // Every file, in order: (field name, file name, body).
+    let mut files: Vec<(String, String, Body)> = Vec::new();
+    while let Some(mut field) = multipart.next_field().await? {
         let name = field.name().unwrap_or("").to_string();
         match (field.file_name().map(String::from), name.as_str()) {
             (None, "id" | "name" | "tags" | "class" | "up" | "format") => {
@@ -322,7 +322,13 @@ async fn from_multipart(
                 };
                 *slot = Some(value);
             }
-            (Some(file_name), _) => files.push((name, file_name, field.bytes().await?)),
+            (Some(file_name), _) => {
+                let mut collector = Collector::new(None, usize::MAX, spool_dir.clone());
+                while let Some(chunk) = field.chunk().await? {
+                    collector.push(&chunk).await?;
+                }
+                files.push((name, file_name, collector.finish().await?));
+            }
             (None, other) => {
                 return Err(AppError::bad_request(
                     "invalid_multipart",
@@ -342,7 +348,7 @@ async fn from_multipart(
                 "no mesh file in the form (a file with a mesh extension, or a file field named `file`)",
             )
         })?;
-    let (_, file_name, mesh) = files.remove(chosen);
+    let (_, file_name, Body { bytes: mesh, spool }) = files.remove(chosen);
     let format_field = fields.format.take();
     // The file name counts when it names a mesh or a zip, not when it is a browser's `blob`.
     let named = format_field.as_deref().or_else(|| {
@@ -359,7 +365,7 @@ async fn from_multipart(
     }
     let resources: BTreeMap<String, Bytes> = files
         .into_iter()
-        .map(|(_, file_name, bytes)| (file_name, bytes))
+        .map(|(_, file_name, body)| (file_name, body.bytes))
         .collect();
     let format = match format_field {
         Some(name) => format_named(&name, &mesh)?,
@@ -370,7 +376,7 @@ async fn from_multipart(
         },
     };
     Ok(MeshUpload {
-        upload: Upload::new(format, mesh, resources),
+        upload: Upload::new(format, mesh, resources).in_spool(spool),
         fields,
     })
 }
