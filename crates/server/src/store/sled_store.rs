@@ -382,7 +382,14 @@ impl super::Store for SledStore {
         if !self.blob_files.contains_key(hash)? {
             return Ok(None);
         }
-        Ok(Some(std::fs::read(self.files.join(hash))?.into()))
+        // Mapped, not read: a download or a re-extraction of a print file of hundreds of
+        // megabytes shares the page cache instead of a heap copy per request.
+        let file = std::fs::File::open(self.files.join(hash))?;
+        // SAFETY: a blob file is written whole under a temporary name and renamed into place
+        // (`write_file`), never written again; removing it unlinks it, which leaves a map of
+        // it valid. Only something outside salient changing the store's folder breaks this.
+        let map = unsafe { memmap2::Mmap::map(&file)? };
+        Ok(Some(bytes::Bytes::from_owner(map)))
     }
 
     fn delete(&self, id: &str) -> StoreResult<Option<ModelRecord>> {
