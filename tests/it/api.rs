@@ -908,6 +908,28 @@ async fn a_body_past_the_spool_threshold_is_stored_and_extracted() {
     }
 }
 
+/// A spool that cannot be written (its folder gone) is the server's fault, said without the
+/// folder's path.
+#[tokio::test]
+async fn a_spool_that_cannot_be_written_is_a_500_that_names_no_path() {
+    let gone = tempfile::tempdir()
+        .unwrap()
+        .path()
+        .join("spool-folder-gone");
+    let app = TestApp::with_config(|config| config.shelf_dir = Some(gone));
+    let failed = app
+        .add("id=big", "model/obj", vec![b'#'; SPOOL_BYTES + 1])
+        .await;
+    crate::app::expect_error(&failed, StatusCode::INTERNAL_SERVER_ERROR, "internal");
+    assert!(
+        !failed.text().contains("spool-folder-gone"),
+        "{}",
+        failed.text()
+    );
+    // The server keeps serving.
+    assert_eq!(app.get("/healthz").send().await.status, StatusCode::OK);
+}
+
 #[tokio::test]
 async fn original_files_come_back_byte_for_byte() {
     let app = TestApp::new();
