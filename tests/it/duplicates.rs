@@ -287,6 +287,92 @@ async fn duplicates_are_checked_rejected_and_grouped_over_http() {
     }
 }
 
+/// An operator's "not a duplicate": the pair leaves the groups and the check, survives a
+/// restart (it is in the store), and comes back when taken back.
+#[tokio::test]
+async fn a_dismissed_pair_leaves_the_groups_and_the_check_until_taken_back() {
+    let dir = tempfile::tempdir().unwrap();
+    let store: std::sync::Arc<dyn salient_server::store::Store> =
+        std::sync::Arc::new(salient_server::store::SledStore::open(dir.path()).unwrap());
+    let start = || TestApp::build(salient_server::api::Config::default(), store.clone(), None);
+    let app = start();
+    let inches = obj(&rescaled(&model()));
+    for (id, bytes) in [
+        ("a1", obj(&model())),
+        ("a2", inches.clone()),
+        ("a3", obj(&model())),
+        ("tube", obj(&shapes::tube(0.3, 30, 24))),
+    ] {
+        let response = app.add(&format!("id={id}"), "model/obj", bytes).await;
+        assert_eq!(response.status(), StatusCode::CREATED, "{id}");
+    }
+    let grouped = |page: Value| page["groups"][0]["ids"].clone();
+    let all = serde_json::json!(["a1", "a2", "a3"]);
+    assert_eq!(grouped(app.get_json("/v1/duplicates").await), all);
+
+    // Refused: one model twice, a model that is not there, two models of one file.
+    for (path, status, code) in [
+        ("a1/a1", StatusCode::BAD_REQUEST, "invalid_path"),
+        ("a1/nobody", StatusCode::NOT_FOUND, "not_found"),
+        ("a1/a3", StatusCode::BAD_REQUEST, "identical_file"),
+    ] {
+        let response = app
+            .request_with_method("PUT", format!("/v1/duplicates/dismissed/{path}"))
+            .send()
+            .await;
+        crate::app::expect_error(&response, status, code);
+    }
+    // Named in any order, kept in id order; the same file (a3) is dismissed with it.
+    let response = app
+        .request_with_method("PUT", "/v1/duplicates/dismissed/a2/a1")
+        .send()
+        .await;
+    assert_eq!(response.status(), StatusCode::OK, "{}", response.text());
+    assert_eq!(
+        (response.json()["a"].clone(), response.json()["b"].clone()),
+        ("a1".into(), "a2".into())
+    );
+    let page = app.get_json("/v1/duplicates").await;
+    assert_eq!(grouped(page), serde_json::json!(["a1", "a3"]));
+    let checked = app
+        .post("/v1/duplicates/check")
+        .header("content-type", "model/obj")
+        .body(inches.clone())
+        .send()
+        .await
+        .json();
+    let ids: Vec<&str> = checked["matches"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|m| m["id"].as_str().unwrap())
+        .collect();
+    assert_eq!(ids, ["a2"], "{checked}");
+
+    // Kept in the store: a restarted service honours it.
+    drop(app);
+    let app = start();
+    let listed = app.get_json("/v1/duplicates/dismissed").await;
+    assert_eq!(listed["dismissed"].as_array().unwrap().len(), 1, "{listed}");
+    assert_eq!(
+        grouped(app.get_json("/v1/duplicates").await),
+        serde_json::json!(["a1", "a3"])
+    );
+
+    // Taken back: one group again; a second time there is nothing to take back.
+    let path = "/v1/duplicates/dismissed/a1/a2";
+    let response = app.request_with_method("DELETE", path).send().await;
+    assert_eq!(
+        response.status(),
+        StatusCode::NO_CONTENT,
+        "{}",
+        response.text()
+    );
+    assert_eq!(grouped(app.get_json("/v1/duplicates").await), all);
+    let response = app.request_with_method("DELETE", path).send().await;
+    crate::app::expect_error(&response, StatusCode::NOT_FOUND, "not_found");
+}
+
 #[tokio::test]
 async fn pages_of_groups_follow_their_first_ids() {
     let app = TestApp::new();

@@ -42,7 +42,10 @@ async fn every_documented_operation_is_routed() {
     let mut operations = 0;
     for (path, item) in paths {
         for method in item.as_object().unwrap().keys() {
-            let uri = path.replace("{id}", "some-id");
+            let uri = path
+                .replace("{id}", "some-id")
+                .replace("{a}", "one")
+                .replace("{b}", "other");
             let request = Request::builder()
                 .method(Method::from_bytes(method.to_uppercase().as_bytes()).unwrap())
                 .uri(&uri)
@@ -61,7 +64,7 @@ async fn every_documented_operation_is_routed() {
             operations += 1;
         }
     }
-    assert_eq!(operations, 23, "documented operations");
+    assert_eq!(operations, 26, "documented operations");
 }
 
 /// Every operation names the scope its route declares, with the 401 and 403 a key check may
@@ -95,9 +98,13 @@ fn every_operation_has_its_security() {
             scoped += 1;
         }
     }
-    assert_eq!(scoped, 20);
+    assert_eq!(scoped, 23);
     assert_eq!(
         spec["paths"]["/v1/models/{id}"]["patch"]["security"][0]["api_key"][0],
         "write"
     );
+    let dismissed = &spec["paths"]["/v1/duplicates/dismissed/{a}/{b}"];
+    for method in ["put", "delete"] {
+        assert_eq!(dismissed[method]["security"][0]["api_key"][0], "write");
+    }
 }

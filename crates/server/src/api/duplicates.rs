@@ -6,7 +6,8 @@
 //! first id), so a page's `next` stays meaningful while models come and go: a group whose
 //! first id is past the cursor is on a later page. Verdicts are remembered by the two
 //! uploads' content hashes (a verdict depends only on the two files and the thresholds), so
-//! the next pages, and the next listing after a few uploads, verify only new pairs.
+//! the next pages, and the next listing after a few uploads, verify only new pairs. Pairs an
+//! operator dismissed ([`super::dismissed`]) are never verified.
 
 use std::collections::{BTreeMap, HashMap};
 use std::num::NonZeroUsize;
@@ -181,7 +182,8 @@ pub async fn list_duplicates(
         .into_iter()
         .filter_map(|(a, b)| {
             let (ha, hb) = (records.get(&*a)?, records.get(&*b)?);
-            (ha != hb).then(|| (a.to_string(), b.to_string(), ha.clone(), hb.clone()))
+            (ha != hb && !app.dismissed.contains(ha, hb))
+                .then(|| (a.to_string(), b.to_string(), ha.clone(), hb.clone()))
         })
         .collect();
     let worker = app.0.clone();
@@ -222,7 +224,7 @@ pub(super) async fn duplicates_of(
 ) -> Result<Vec<DuplicateMatch>, AppError> {
     let p = app.config.params.similarity.duplicates.clone();
     let hash = upload.content_hash().to_string();
-    let (same_file, candidates) = app
+    let (same_file, mut candidates) = app
         .read_catalog(move |catalog| {
             let without = exclude.as_ref().map(ModelId::as_str);
             let same_file: Vec<String> = catalog
@@ -252,6 +254,8 @@ pub(super) async fn duplicates_of(
         })
         .await?
         .map_err(AppError::index)?;
+    let hash = upload.content_hash();
+    candidates.retain(|(_, their)| !app.dismissed.contains(hash, their));
     let worker = app.0.clone();
     let mut matches: Vec<DuplicateMatch> = same_file
         .into_iter()

@@ -5,6 +5,7 @@
 pub mod auth;
 mod catalog;
 pub mod config;
+pub mod dismissed;
 pub mod duplicates;
 pub mod error;
 pub mod evidence;
@@ -95,6 +96,8 @@ pub struct App {
     ranking_hook: Option<Hook>,
     /// Meshes and verdicts of the near-duplicate check.
     verifier: duplicates::Verifier,
+    /// Pairs an operator said are not duplicates.
+    dismissed: dismissed::Dismissed,
     /// Held from the duplicate check of an upload that rejects duplicates until it is stored,
     /// so that two copies uploaded at once cannot both pass.
     duplicate_gate: tokio::sync::Mutex<()>,
@@ -216,6 +219,7 @@ impl App {
         let rankers = rankers::Rankers::new(config.rankings, metrics.rankings_waiting.clone())
             .map_err(|e| StartError::Threads(e.to_string()))?;
         let reindex = reindex::Reindexer::load(store.as_ref())?;
+        let dismissed = dismissed::Dismissed::load(store.as_ref())?;
         let patcher = patches::Patcher::new(metrics.patches_pending.clone());
         Ok(Self {
             config,
@@ -232,6 +236,7 @@ impl App {
             queries: std::sync::Mutex::new(lru::LruCache::new(RECENT_QUERIES)),
             ranking_hook: None,
             verifier: duplicates::Verifier::default(),
+            dismissed,
             duplicate_gate: tokio::sync::Mutex::new(()),
             patcher,
         })
@@ -501,6 +506,11 @@ fn routes() -> Routes {
         .with(Key(Read), routes!(search::extract))
         .with(Key(Read), routes!(duplicates::list_duplicates))
         .with(Key(Read), routes!(duplicates::check_duplicates))
+        .with(Key(Read), routes!(dismissed::list_dismissed))
+        .with(
+            Key(Write),
+            routes!(dismissed::dismiss, dismissed::undismiss),
+        )
         .with(
             Key(Admin),
             routes!(reindex::start_reindex, reindex::get_reindex),
