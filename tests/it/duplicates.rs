@@ -12,6 +12,7 @@ use salient_core::mesh::write::Export;
 use salient_core::mesh::{load_bytes, RawMesh};
 use salient_core::params::DuplicateParams;
 use salient_core::Limits;
+use salient_eval::disguise::{self, Indexed};
 use serde_json::Value;
 
 use crate::app::TestApp;
@@ -115,6 +116,66 @@ fn a_model_and_its_disguised_copies_are_one_asset_and_another_pose_is_not() {
     assert_eq!(evidence(&four_limbs), None, "a limb fewer");
 }
 
+/// A re-tessellation of a welded mesh to about a vertex count.
+type Family = fn(&[DVec3], &[[u32; 3]], usize) -> Indexed;
+
+/// `mesh` welded, re-tessellated by `family` (the benchmark's disguises), then rotated,
+/// scaled and moved as `remeshed` does.
+fn disguised(mesh: &RawMesh, family: Family) -> RawMesh {
+    let welded = weld(mesh, 1e-6).unwrap();
+    let (positions, triangles) = family(
+        &welded.positions,
+        &welded.triangles,
+        welded.positions.len() / 2,
+    );
+    let motion = DMat4::from_scale_rotation_translation(
+        DVec3::splat(0.1),
+        DQuat::from_axis_angle(DVec3::new(1.0, -2.0, 0.5).normalize(), 2.2),
+        DVec3::new(4.0, -7.0, 1.5),
+    );
+    shapes::transformed(
+        &RawMesh {
+            positions,
+            triangles,
+        },
+        motion,
+    )
+}
+
+#[test]
+fn every_common_simplifier_and_linear_subdivision_keep_the_shape_and_a_morph_or_pose_does_not() {
+    let params = DuplicateParams::default();
+    let evidence = |original: &RawMesh, copy: &RawMesh| {
+        verify(&shape(original), &shape(copy), &params).map(|v| v.evidence)
+    };
+    let families: [(&str, Family); 5] = [
+        ("edge collapse", disguise::edge_collapse),
+        ("quadric, optimal placement", disguise::quadric),
+        ("vertex clustering", disguise::clustered),
+        ("re-triangulated", |p, t, _| disguise::retriangulated(p, t)),
+        ("midpoint subdivision", |p, t, _| disguise::midpoint(p, t)),
+    ];
+    // The body with five limbs, and the same coarser: a coarse mesh is moved farther by any
+    // re-tessellation.
+    for mesh in [model(), shapes::star(3, &shapes::five_tips())] {
+        for (name, family) in families {
+            let found = evidence(&mesh, &disguised(&mesh, family));
+            assert!(
+                matches!(
+                    found,
+                    Some(Evidence::SameShape | Evidence::IdenticalGeometry)
+                ),
+                "{name}: {found:?}"
+            );
+        }
+        // A morph of the quadric copy and another pose are still other assets.
+        let morph = disguised(&stretched(&mesh), disguise::quadric);
+        assert_eq!(evidence(&mesh, &morph), None, "a morph");
+    }
+    let posed = disguised(&posed(), disguise::clustered);
+    assert_eq!(evidence(&model(), &posed), None, "another pose");
+}
+
 #[test]
 fn a_remeshed_morph_is_not_the_model_it_was_made_from() {
     // Coarser than `model()`, so a remeshing moves the surface as far as the morph does.
@@ -132,7 +193,7 @@ fn a_remeshed_morph_is_not_the_model_it_was_made_from() {
     assert_eq!(evidence(&morph, &params), None);
     // What tells them apart is where the vertices lie, not the surfaces' distances.
     let surfaces_only = DuplicateParams {
-        vertices: 10.0,
+        vertices_per_edge: 10.0,
         ..params
     };
     assert_eq!(evidence(&morph, &surfaces_only), Some(Evidence::SameShape));

@@ -475,9 +475,13 @@ impl SimilarityParams {
                     d.lfd,
                     d.mean,
                     d.mean_per_spacing,
+                    d.mean_at_most,
+                    d.mean_per_triangle,
                     d.largest,
                     d.largest_per_spacing,
-                    d.vertices,
+                    d.largest_per_triangle,
+                    d.vertices_per_edge,
+                    d.deleted,
                     d.geometry,
                 ]
                 .iter()
@@ -529,26 +533,33 @@ pub struct DuplicateParams {
     /// At most this many candidates for one upload, nearest first.
     pub candidates: usize,
     /// `same_shape` when, aligned, each surface's samples lie on average within this many RMS
-    /// radii of the other surface, or within `mean_per_spacing` triangle sizes of the coarser
-    /// mesh if that is more (a remeshing moves a coarse surface more), but never more than
-    /// `mean_at_most` (boxy low-poly models have large triangles that remeshing hardly moves) …
+    /// radii of the other surface, or within `mean_per_spacing` typical triangle sizes of the
+    /// coarser mesh if that is more (a remeshing moves a coarse surface more) but never more
+    /// than `mean_at_most` (boxy low-poly models have large triangles that remeshing hardly
+    /// moves), or within `mean_per_triangle` sizes of the coarser mesh's triangles where each
+    /// sample lies (a simplification moves the surface in proportion to the triangles it
+    /// leaves there, large or small: `crate::duplicate::Distances`) …
     pub mean: f64,
     pub mean_per_spacing: f64,
     pub mean_at_most: f64,
-    /// … and none farther than `largest` RMS radii or `largest_per_spacing` triangle sizes:
-    /// another pose of a model moves a limb far, however small it is.
+    pub mean_per_triangle: f64,
+    /// … and none farther than `largest` RMS radii or `largest_per_spacing` typical triangle
+    /// sizes, or else `largest_per_triangle` sizes of the triangles where they lie: another
+    /// pose of a model moves a limb far, however small its triangles …
     pub largest: f64,
     pub largest_per_spacing: f64,
-    /// … and nine in ten of the coarser mesh's vertices within this many RMS radii of the
-    /// finer surface, fitted onto it (`crate::duplicate::Shape`): a remeshing keeps its
-    /// vertices on the surface, so this holds however coarse the copy, while a morph of one
-    /// mesh (the same faces, some vertices moved) comes within the limits above.
-    pub vertices: f64,
+    pub largest_per_triangle: f64,
+    /// … and nine in ten of the coarser mesh's vertices within this many of their own edge
+    /// lengths of the finer surface, fitted onto it (`crate::duplicate::Shape`): a
+    /// simplification keeps or places its vertices on the surface, whichever simplifier made
+    /// it, while a morph of one mesh (the same faces, some vertices moved) or a smoothing
+    /// moves them off it by more than the surfaces' limits tell.
+    pub vertices_per_edge: f64,
     /// A simplification may delete small connected pieces whole (an edge collapse takes an
     /// isolated triangle away: CAPOD's trees lose leaves). For a copy all of whose vertices
-    /// lie within `vertices` of the other surface, the finer mesh's samples on small pieces
-    /// beyond the largest distance are left out of the limits above, when they are at most
-    /// this share of its surface.
+    /// lie within `vertices_per_edge`, the finer mesh's samples on small pieces beyond the
+    /// largest distance are left out of the limits above, when they are at most this share
+    /// of its surface.
     pub deleted: f64,
     /// `identical_geometry` when the welded meshes have the same counts and every vertex lies
     /// within this many RMS radii of the other surface, unrotated.
@@ -564,9 +575,11 @@ impl Default for DuplicateParams {
             mean: 0.006,
             mean_per_spacing: 0.2,
             mean_at_most: 0.025,
+            mean_per_triangle: 0.1,
             largest: 0.08,
             largest_per_spacing: 1.0,
-            vertices: 0.015,
+            largest_per_triangle: 1.5,
+            vertices_per_edge: 0.12,
             deleted: 0.06,
             geometry: 1e-4,
         }
@@ -574,8 +587,8 @@ impl Default for DuplicateParams {
 }
 
 impl DuplicateParams {
-    /// The surfaces' mean and largest distance allowed between two meshes, the coarser of
-    /// triangle size `spacing` (RMS radii).
+    /// The surfaces' mean and largest distance allowed between two meshes in RMS radii, the
+    /// coarser of typical triangle size `spacing` (RMS radii).
     pub fn surface_limits(&self, spacing: f64) -> (f64, f64) {
         (
             self.mean

@@ -6,7 +6,7 @@
 //! written here. Types are glam's as parry re-exports them (`glamx`), f32 as parry's are.
 
 use glamx::{DMat3, DSvd3, DVec3, Mat3, Vec3};
-use parry3d::query::PointQuery;
+use parry3d::query::{PointQuery, PointQueryWithLocation};
 use parry3d::shape::TriMesh;
 
 use crate::{Error, Result};
@@ -24,6 +24,16 @@ impl Surface {
 
     pub fn vertices(&self) -> &[Vec3] {
         self.0.vertices()
+    }
+
+    pub fn triangles(&self) -> &[[u32; 3]] {
+        self.0.indices()
+    }
+
+    /// The distance of `p` from the surface and the triangle closest to it.
+    pub fn distance_and_triangle(&self, p: Vec3) -> (f32, u32) {
+        let (projection, (triangle, _)) = self.0.project_local_point_and_get_location(p, false);
+        ((projection.point - p).length(), triangle)
     }
 
     /// The point of the surface closest to `p`.

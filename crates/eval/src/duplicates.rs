@@ -1,15 +1,17 @@
 //! `salient eval duplicates`: how well the library-wide near-duplicate search
 //! ([`salient_core::duplicate`]) finds disguised copies, and how rarely it takes another model of
-//! the same class for one (`docs/results/duplicates/`). Every model of a collection (or of one of its halves,
-//! [`super::study::halves`]) gets two copies, mixed into it:
-//! - **re-exported**: another file format (float32 for STL and GLB), scaled by 25.4 or 0.1 and
-//!   moved — expected `identical_geometry`;
-//! - **remeshed**: simplified to 40–60 % of its welded vertices, rotated at random, scaled and
-//!   moved, in another format — expected `same_shape`.
+//! the same class for one (`docs/results/duplicates/`). Every model of a collection (or of one
+//! of its halves, [`super::study::halves`]) gets one copy of each family of disguises
+//! ([`Disguise`], made by [`super::disguise`]): re-exported, re-triangulated, simplified by
+//! three kinds of simplifier, subdivided linearly — each expected to be found — and Loop
+//! subdivided, a smoothed asset expected *not* to be. Each copy is also rotated, scaled by 25.4
+//! or 0.1, moved and written in another format.
 //!
 //! Copies are written as files and read back, as an upload would be. The search then runs as
-//! the service runs it: candidate pairs from the D2 histograms, each verified on the meshes,
-//! groups from the verified links. A pair of files counts as found at an evidence level when
+//! the service runs it: candidate pairs from the global descriptors, each verified on the
+//! meshes, groups from the verified links. Each family is measured on its own: the models with
+//! only that family's copies mixed in (the candidate filter is pairwise, so one search over
+//! every file serves every family). A pair of files counts as found at an evidence level when
 //! both are in one group at that level; the true pairs are the files of one source model.
 
 use std::collections::{BTreeMap, HashMap};
@@ -22,13 +24,13 @@ use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
 use serde::Serialize;
 
+use super::disguise::{self, Indexed};
 use super::report::{score, write, write_json, Table};
 use super::robustness::random_rotation;
 use super::study::Half;
 use super::{LabelledCollection, Progress};
-use salient_core::duplicate::{groups, judge, Deviation, Evidence, Link, Shape, Verdict};
+use salient_core::duplicate::{groups, judge, Deviation, Evidence, Link, Reach, Shape, Verdict};
 use salient_core::mesh::load::NoResources;
-use salient_core::mesh::simplify::simplify;
 use salient_core::mesh::weld::weld;
 use salient_core::mesh::write::Export;
 use salient_core::mesh::{load_bytes, load_path, RawMesh};
@@ -43,20 +45,77 @@ fn sha256_hex(bytes: &[u8]) -> String {
 }
 use salient_core::Result;
 
-/// How a copy was disguised.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Serialize)]
+/// How a copy was disguised: a family of tools ([`super::disguise`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Disguise {
+    /// Another format (float32 for STL and GLB), other units, moved; not rotated.
     Reexported,
-    Remeshed,
+    /// The same vertices, quads' diagonals flipped.
+    Retriangulated,
+    /// meshoptimizer's edge collapse to 40–60 % of the welded vertices (a subset of them).
+    EdgeCollapse,
+    /// Garland–Heckbert quadric collapse with optimal placement, to 40–60 %.
+    Quadric,
+    /// Vertex clustering on a grid, to 40–60 %.
+    Clustered,
+    /// Every triangle split in four at its edges' midpoints.
+    Midpoint,
+    /// One step of Loop's smoothing subdivision: another asset.
+    Loop,
 }
 
 impl Disguise {
-    /// The evidence a copy so disguised should be found with.
-    fn expected(self) -> Evidence {
+    pub const ALL: [Disguise; 7] = [
+        Disguise::Reexported,
+        Disguise::Retriangulated,
+        Disguise::EdgeCollapse,
+        Disguise::Quadric,
+        Disguise::Clustered,
+        Disguise::Midpoint,
+        Disguise::Loop,
+    ];
+
+    /// The weakest evidence a copy so disguised should be found with (stronger is right
+    /// too); `None` for another asset. A linear subdivision leaves every vertex of each mesh
+    /// on the other's surface: `identical_geometry`. A re-triangulation keeps the vertices
+    /// but moves the surface between them a little, and the frame with it.
+    fn expected(self) -> Option<Evidence> {
         match self {
-            Disguise::Reexported => Evidence::IdenticalGeometry,
-            Disguise::Remeshed => Evidence::SameShape,
+            Disguise::Reexported | Disguise::Midpoint => Some(Evidence::IdenticalGeometry),
+            Disguise::Retriangulated
+            | Disguise::EdgeCollapse
+            | Disguise::Quadric
+            | Disguise::Clustered => Some(Evidence::SameShape),
+            Disguise::Loop => None,
+        }
+    }
+
+    fn name(self) -> &'static str {
+        match self {
+            Disguise::Reexported => "reexported",
+            Disguise::Retriangulated => "retriangulated",
+            Disguise::EdgeCollapse => "edge_collapse",
+            Disguise::Quadric => "quadric",
+            Disguise::Clustered => "clustered",
+            Disguise::Midpoint => "midpoint",
+            Disguise::Loop => "loop",
+        }
+    }
+
+    /// The copy of a welded mesh, before it is moved; `fraction` of its vertices kept by
+    /// the simplifiers.
+    fn make(self, welded: &salient_core::mesh::weld::Welded, fraction: f64) -> Indexed {
+        let (p, t) = (&welded.positions[..], &welded.triangles[..]);
+        let target = ((p.len() as f64 * fraction) as usize).max(4);
+        match self {
+            Disguise::Reexported => (p.to_vec(), t.to_vec()),
+            Disguise::Retriangulated => disguise::retriangulated(p, t),
+            Disguise::EdgeCollapse => disguise::edge_collapse(p, t, target),
+            Disguise::Quadric => disguise::quadric(p, t, target),
+            Disguise::Clustered => disguise::clustered(p, t, target),
+            Disguise::Midpoint => disguise::midpoint(p, t),
+            Disguise::Loop => disguise::loop_subdivided(p, t),
         }
     }
 }
@@ -73,7 +132,16 @@ struct File {
     raw: RawMesh,
 }
 
-/// What the search found, overall and per evidence level.
+impl File {
+    /// The evidence this file should be found with beside its source; `None` for another
+    /// asset made from it.
+    fn expected(&self) -> Option<Evidence> {
+        self.disguise
+            .map_or(Some(Evidence::IdenticalFile), Disguise::expected)
+    }
+}
+
+/// What the search found, per family of disguises.
 #[derive(Debug, Clone, Serialize)]
 pub struct DuplicatesReport {
     pub collection: String,
@@ -81,20 +149,19 @@ pub struct DuplicatesReport {
     pub models: usize,
     pub copies: usize,
     pub params: DuplicateParams,
-    /// Candidate pairs verified on the meshes.
+    /// Candidate pairs verified on the meshes (pairs of copies of two families left out).
     pub verified: usize,
     /// Models of the collection whose files are byte-identical: one model for the measures.
     pub identical_in_collection: Vec<(String, String)>,
     /// Models of the collection that are one design tessellated twice ([`SAME_DESIGN`]):
     /// a `same_shape` pair for the measures.
     pub same_design_in_collection: Vec<(String, String)>,
-    pub levels: Vec<Level>,
-    pub disguises: Vec<DisguiseResult>,
-    /// Verified links between files of different models (false positives), and their
+    pub families: Vec<Family>,
+    /// Verified links between files that are not one asset (false positives), and their
     /// classes.
     pub false_links: Vec<FalseLink>,
-    /// Candidate pairs of different models and their aligned deviation (RMS radii): how far
-    /// the hardest negatives stay from the `same_shape` threshold.
+    /// Candidate pairs of different models and their aligned deviation: how far the hardest
+    /// negatives stay from the `same_shape` threshold.
     pub negatives: Vec<Aligned>,
     /// How well each global descriptor's distance separates copies from other models, over
     /// every pair of files: what a candidate filter can use.
@@ -106,7 +173,7 @@ pub struct DuplicatesReport {
 #[derive(Debug, Clone, Serialize)]
 pub struct Filter {
     pub method: String,
-    /// The largest distance between files of one model.
+    /// The largest distance between files of one model (copies expected to be found).
     pub copies_max: f64,
     /// Pairs of files of different models, and how many are within `copies_max`.
     pub others: usize,
@@ -124,54 +191,61 @@ pub struct Level {
     pub recall: f64,
 }
 
-/// Each copy against its own model, verified directly (whether or not it was a candidate).
+/// One family of disguises: the models with only its copies mixed in, and each copy against
+/// its own model, verified directly (whether or not it was a candidate).
 #[derive(Debug, Clone, Serialize)]
-pub struct DisguiseResult {
+pub struct Family {
     pub disguise: Disguise,
+    /// What its copies should be found with (`null`: another asset, never to be linked).
+    pub expected: Option<Evidence>,
     pub copies: usize,
+    /// Pairs found in the mixed collection at `identical_geometry`, `same_shape` and
+    /// `mirrored`.
+    pub levels: Vec<Level>,
     /// Copies that passed the candidate filter with their model.
     pub candidates: usize,
     /// Evidence found between copy and model, by name (`none` when not a duplicate).
     pub evidence: BTreeMap<String, usize>,
-    /// D2 distances and aligned distances between copy and model.
+    /// The copies' share of their model's welded vertices.
+    pub vertices_kept: Distribution,
+    /// D2 distances between copy and model.
     pub d2: Distribution,
-    /// The 99th percentile of the aligned distances ([`Deviation`]).
+    /// The 99th percentile of the aligned distances, in RMS radii and in triangle sizes
+    /// ([`salient_core::duplicate::Distances`]).
     pub aligned: Distribution,
-    /// The 90th percentile of the coarser file's vertices' distances ([`Deviation`]).
+    pub aligned_local: Distribution,
+    /// The 90th percentile of the coarser file's vertices' distances, in edge lengths.
     pub vertices: Distribution,
     /// Every copy, farthest from its model first.
     pub worst: Vec<Aligned>,
 }
 
-/// Two files, their aligned deviation and the coarser one's triangle size (RMS radii).
+/// Two files and their aligned deviation.
 #[derive(Debug, Clone, Serialize)]
 pub struct Aligned {
     pub a: String,
     pub b: String,
+    /// `identical_geometry` passed (no alignment needed).
+    pub identical: bool,
     pub deviation: Deviation,
-    pub spacing: f64,
 }
 
 /// A pair verified as the service verifies it, with what the verdict was judged on.
 struct Measured {
     verdict: Option<Verdict>,
+    identical: bool,
     deviation: Deviation,
-    spacing: f64,
 }
 
 fn measure(x: &Shape, y: &Shape, p: &DuplicateParams) -> Measured {
     // Every pair's vertices measured, for choosing thresholds.
     let spacing = x.coarser(y);
-    let alignment = x.align(y, p.surface_limits(spacing).1, |_| true);
+    let alignment = x.align(y, Reach::new(p, spacing), |_| true);
+    let geometry = x.geometry_deviation(y, p.geometry);
     Measured {
-        verdict: judge(
-            x.geometry_deviation(y, p.geometry),
-            |_, _| alignment,
-            spacing,
-            p,
-        ),
+        verdict: judge(geometry, |_, _| alignment, spacing, p),
+        identical: geometry.is_some(),
         deviation: alignment.rotated,
-        spacing,
     }
 }
 
@@ -289,20 +363,25 @@ pub fn run(
         .enumerate()
         .map(|(i, f)| (f.name.as_str(), i))
         .collect();
-    let pairs = index
+    // Two copies of different families are never in one mixed collection.
+    let apart =
+        |a: &File, b: &File| matches!((a.disguise, b.disguise), (Some(x), Some(y)) if x != y);
+    let pairs: Vec<(usize, usize)> = index
         .near_pairs(p.d2, p.lfd)
         .map_err(|e| salient_core::Error::Io {
             path: std::env::temp_dir(),
             source: e,
-        })?;
+        })?
+        .iter()
+        .map(|(a, b)| (number[&**a], number[&**b]))
+        .filter(|&(a, b)| !apart(&files[a], &files[b]))
+        .collect();
     progress.start("verify", pairs.len());
     let measured: Vec<(usize, usize, Measured)> = pairs
         .par_iter()
-        .map(|(a, b)| {
-            let (i, j) = (number[&**a], number[&**b]);
-            let (x, y) = (&described[i].1, &described[j].1);
-            progress.advance(a);
-            (i, j, measure(x, y, p))
+        .map(|&(i, j)| {
+            progress.advance(&files[i].name);
+            (i, j, measure(&described[i].1, &described[j].1, p))
         })
         .collect();
     progress.finish();
@@ -318,18 +397,9 @@ pub fn run(
             })
         })
         .collect();
-    let same_design = |a: usize, b: usize| files[a].design == files[b].design;
-    let levels = [
-        Evidence::IdenticalGeometry,
-        Evidence::SameShape,
-        Evidence::Mirrored,
-    ]
-    .into_iter()
-    .map(|min| level(&files, &links, min))
-    .collect();
     let false_links = links
         .iter()
-        .filter(|l| !same_design(l.a, l.b))
+        .filter(|l| expected(&files, l.a, l.b).is_none())
         .map(|l| FalseLink {
             a: files[l.a].name.clone(),
             b: files[l.b].name.clone(),
@@ -346,11 +416,20 @@ pub fn run(
                 .flat_map_iter(|a| {
                     let described = &described;
                     let files = &files;
-                    (a + 1..files.len()).map(move |b| {
-                        let d =
-                            distance(method, &described[a].0, &described[b].0, &params.similarity);
-                        (files[a].source == files[b].source, d)
-                    })
+                    (a + 1..files.len())
+                        .filter(move |&b| !apart(&files[a], &files[b]))
+                        .filter(move |&b| {
+                            files[a].source != files[b].source || expected(files, a, b).is_some()
+                        })
+                        .map(move |b| {
+                            let d = distance(
+                                method,
+                                &described[a].0,
+                                &described[b].0,
+                                &params.similarity,
+                            );
+                            (files[a].source == files[b].source, d)
+                        })
                 })
                 .collect();
             let copies_max = all.iter().filter(|x| x.0).map(|x| x.1).fold(0.0, f64::max);
@@ -364,18 +443,15 @@ pub fn run(
         .collect();
     let negatives: Vec<Aligned> = measured
         .iter()
-        .filter(|m| !same_design(m.0, m.1))
+        .filter(|m| files[m.0].design != files[m.1].design)
         .map(|(a, b, m)| Aligned {
             a: files[*a].name.clone(),
             b: files[*b].name.clone(),
+            identical: m.identical,
             deviation: m.deviation,
-            spacing: m.spacing,
         })
         .collect();
-    let candidate: std::collections::HashSet<(usize, usize)> = pairs
-        .iter()
-        .map(|(a, b)| (number[&**a], number[&**b]))
-        .collect();
+    let candidate: std::collections::HashSet<(usize, usize)> = pairs.iter().copied().collect();
     let original: HashMap<usize, usize> = files
         .iter()
         .enumerate()
@@ -383,28 +459,37 @@ pub fn run(
         .filter(|(_, f)| f.disguise.is_none())
         .map(|(i, f)| (f.source, i))
         .collect();
-    let disguises = [Disguise::Reexported, Disguise::Remeshed]
+    let families = Disguise::ALL
         .into_iter()
         .map(|disguise| {
-            let checked: Vec<(Measured, f64, &str, bool)> = files
+            let members: Vec<usize> = (0..files.len())
+                .filter(|&i| files[i].disguise.is_none_or(|d| d == disguise))
+                .collect();
+            let levels = [
+                Evidence::IdenticalGeometry,
+                Evidence::SameShape,
+                Evidence::Mirrored,
+            ]
+            .into_iter()
+            .map(|min| level(&files, &members, &links, min))
+            .collect();
+            let checked: Vec<(Measured, f64, f64, &str, bool)> = files
                 .par_iter()
                 .enumerate()
                 .filter(|(_, f)| f.disguise == Some(disguise))
                 .map(|(c, f)| {
                     // The source's first model (byte-identical models share a source).
                     let o = original[&f.source];
-                    let pair = if files[o].name < f.name {
-                        (o, c)
-                    } else {
-                        (c, o)
-                    };
+                    let pair = (o.min(c), o.max(c));
                     let d2 = salient_core::descriptor::histogram_l1(
                         &described[o].0.d2,
                         &described[c].0.d2,
                     );
+                    let kept = described[c].1.vertices() as f64 / described[o].1.vertices() as f64;
                     (
                         measure(&described[c].1, &described[o].1, p),
                         d2,
+                        kept,
                         f.name.as_str(),
                         candidate.contains(&pair),
                     )
@@ -415,36 +500,35 @@ pub fn run(
                 let name = measured.verdict.map_or("none", |v| v.evidence.as_str());
                 *evidence.entry(name.to_string()).or_insert(0) += 1;
             }
-            DisguiseResult {
+            let of = |f: &dyn Fn(&Deviation) -> f64| {
+                Distribution::of(checked.iter().map(|c| f(&c.0.deviation)).collect())
+            };
+            let mut worst: Vec<Aligned> = checked
+                .iter()
+                .map(|c| Aligned {
+                    a: c.3.to_string(),
+                    b: String::new(),
+                    identical: c.0.identical,
+                    deviation: c.0.deviation,
+                })
+                .collect();
+            worst.sort_by(|x, y| {
+                let key = |a: &Aligned| a.deviation.surfaces.local.p99;
+                key(y).total_cmp(&key(x))
+            });
+            Family {
                 disguise,
+                expected: disguise.expected(),
                 copies: checked.len(),
-                candidates: checked.iter().filter(|c| c.3).count(),
+                levels,
+                candidates: checked.iter().filter(|c| c.4).count(),
                 evidence,
+                vertices_kept: Distribution::of(checked.iter().map(|c| c.2).collect()),
                 d2: Distribution::of(checked.iter().map(|c| c.1).collect()),
-                aligned: Distribution::of(
-                    checked.iter().map(|c| c.0.deviation.surfaces.p99).collect(),
-                ),
-                vertices: Distribution::of(
-                    checked.iter().map(|c| c.0.deviation.vertices.p90).collect(),
-                ),
-                worst: {
-                    let mut worst: Vec<Aligned> = checked
-                        .iter()
-                        .map(|c| Aligned {
-                            a: c.2.to_string(),
-                            b: String::new(),
-                            deviation: c.0.deviation,
-                            spacing: c.0.spacing,
-                        })
-                        .collect();
-                    worst.sort_by(|x, y| {
-                        y.deviation
-                            .surfaces
-                            .p99
-                            .total_cmp(&x.deviation.surfaces.p99)
-                    });
-                    worst
-                },
+                aligned: of(&|d| d.surfaces.absolute.p99),
+                aligned_local: of(&|d| d.surfaces.local.p99),
+                vertices: of(&|d| d.vertices.p90),
+                worst,
             }
         })
         .collect();
@@ -457,8 +541,7 @@ pub fn run(
         verified: pairs.len(),
         identical_in_collection,
         same_design_in_collection,
-        levels,
-        disguises,
+        families,
         false_links,
         negatives,
         filters,
@@ -467,6 +550,22 @@ pub fn run(
             describe: describe_seconds,
             search: search_seconds,
         },
+    })
+}
+
+/// The evidence files `a` and `b` should be linked by, if they are one asset: files of one
+/// model by the weaker of their disguises' (`None` when either is another asset), files of
+/// one design ([`SAME_DESIGN`]) by `same_shape`.
+fn expected(files: &[File], a: usize, b: usize) -> Option<Evidence> {
+    let (x, y) = (&files[a], &files[b]);
+    if x.design != y.design {
+        return None;
+    }
+    let weaker = x.expected()?.max(y.expected()?);
+    Some(if x.source == y.source {
+        weaker
+    } else {
+        weaker.max(Evidence::SameShape)
     })
 }
 
@@ -537,37 +636,32 @@ fn chosen_count(files: &[File]) -> usize {
     files.iter().filter(|f| f.disguise.is_none()).count()
 }
 
-/// Precision and recall of the pairs grouped at `min` or stronger. The true pairs at
-/// `identical_geometry` are each model with its re-exported copy; below it, every two files
-/// of one model, and of one design.
-fn level(files: &[File], links: &[Link<usize>], min: Evidence) -> Level {
-    let expected = |f: &File| {
-        f.disguise
-            .map_or(Evidence::IdenticalFile, Disguise::expected)
-    };
-    let is_true = |a: usize, b: usize| {
-        let expected = if files[a].source == files[b].source {
-            expected(&files[a]).max(expected(&files[b]))
-        } else if files[a].design == files[b].design {
-            Evidence::SameShape
-        } else {
-            return false;
-        };
-        expected <= min
-    };
-    let mut found = 0;
-    let mut correct = 0;
-    for g in groups(links, min) {
+/// Precision and recall of the pairs of `members` grouped at `min` or stronger by the links
+/// among them: right when one asset ([`expected`] at all), recalled when expected at `min`
+/// or stronger.
+fn level(files: &[File], members: &[usize], links: &[Link<usize>], min: Evidence) -> Level {
+    let member: std::collections::HashSet<usize> = members.iter().copied().collect();
+    let among: Vec<Link<usize>> = links
+        .iter()
+        .filter(|l| member.contains(&l.a) && member.contains(&l.b))
+        .cloned()
+        .collect();
+    let is_true = |a: usize, b: usize| expected(files, a, b).is_some_and(|e| e <= min);
+    // A pair found is right when it is one asset, whatever evidence it was expected with;
+    // recall counts the pairs expected at `min`.
+    let (mut found, mut correct, mut recalled) = (0, 0, 0);
+    for g in groups(&among, min) {
         for (k, &a) in g.ids.iter().enumerate() {
             for &b in &g.ids[k + 1..] {
                 found += 1;
-                correct += usize::from(is_true(a, b));
+                correct += usize::from(expected(files, a, b).is_some());
+                recalled += usize::from(is_true(a, b));
             }
         }
     }
     let mut true_pairs = 0;
-    for a in 0..files.len() {
-        for b in a + 1..files.len() {
+    for (k, &a) in members.iter().enumerate() {
+        for &b in &members[k + 1..] {
             true_pairs += usize::from(is_true(a, b));
         }
     }
@@ -578,11 +672,12 @@ fn level(files: &[File], links: &[Link<usize>], min: Evidence) -> Level {
         found_pairs: found,
         correct,
         precision: ratio(correct, found),
-        recall: ratio(correct, true_pairs),
+        recall: ratio(recalled, true_pairs),
     }
 }
 
-/// A model and its two disguised copies, each written as a file and read back.
+/// A model and one copy of each family ([`Disguise::ALL`]), each moved (rotated too when
+/// not expected `identical_geometry`), written as a file in turn of the formats and read back.
 fn disguised(
     source: usize,
     name: &str,
@@ -593,115 +688,108 @@ fn disguised(
 ) -> Result<Vec<File>> {
     let mut rng = ChaCha8Rng::seed_from_u64(source as u64);
     let welded = weld(raw, params.mesh.weld_tolerance)?;
-    let exports = Export::ALL;
-    let (first, second) = (exports[source % 4], exports[(source + 1) % 4]);
     let size = {
         let (lo, hi) = salient_core::mesh::weld::bounds(&welded.positions);
         lo.distance(hi)
     };
-    let moved = |positions: &[DVec3], rotate: bool, rng: &mut ChaCha8Rng| {
+    let fraction = rng.gen_range(0.4..0.6);
+    let mut files = vec![File {
+        name: name.to_string(),
+        source,
+        design: source,
+        class: class.to_string(),
+        disguise: None,
+        raw: raw.clone(),
+    }];
+    for (k, disguise) in Disguise::ALL.into_iter().enumerate() {
+        let (positions, triangles) = disguise.make(&welded, fraction);
         let scale = if rng.gen_bool(0.5) { 25.4 } else { 0.1 };
-        let rotation = if rotate {
-            random_rotation(rng)
-        } else {
+        let rotation = if disguise.expected() == Some(Evidence::IdenticalGeometry) {
             glam::DQuat::IDENTITY
+        } else {
+            random_rotation(&mut rng)
         };
         let shift = DVec3::new(
             rng.gen_range(-1.0..1.0),
             rng.gen_range(-1.0..1.0),
             rng.gen_range(-1.0..1.0),
         ) * size;
-        positions
-            .iter()
-            .map(|&p| rotation * (p * scale) + shift * scale)
-            .collect::<Vec<_>>()
-    };
-    let reexported = RawMesh {
-        positions: moved(&welded.positions, false, &mut rng),
-        triangles: welded.triangles.clone(),
-    };
-    let fraction = rng.gen_range(0.4..0.6);
-    let target = ((welded.positions.len() as f64 * fraction) as usize).max(4);
-    let (positions, triangles) = simplify(&welded.positions, &welded.triangles, target)
-        .unwrap_or_else(|| (welded.positions.clone(), welded.triangles.clone()));
-    let remeshed = RawMesh {
-        positions: moved(&positions, true, &mut rng),
-        triangles,
-    };
-    let read_back = |mesh: &RawMesh, export: Export| {
-        load_bytes(&export.write(mesh), export.format(), &NoResources, limits)
-    };
-    let file = |suffix: String, disguise, raw| File {
-        name: format!("{name}{suffix}"),
-        source,
-        design: source,
-        class: class.to_string(),
-        disguise,
-        raw,
-    };
-    Ok(vec![
-        file(String::new(), None, raw.clone()),
-        file(
-            format!("#reexported.{}", first.name().replace(' ', "-")),
-            Some(Disguise::Reexported),
-            read_back(&reexported, first)?,
-        ),
-        file(
-            format!("#remeshed.{}", second.name().replace(' ', "-")),
-            Some(Disguise::Remeshed),
-            read_back(&remeshed, second)?,
-        ),
-    ])
+        let copy = RawMesh {
+            positions: positions
+                .iter()
+                .map(|&p| rotation * (p * scale) + shift * scale)
+                .collect(),
+            triangles,
+        };
+        let export = Export::ALL[(source + k) % Export::ALL.len()];
+        files.push(File {
+            name: format!(
+                "{name}#{}.{}",
+                disguise.name(),
+                export.name().replace(' ', "-")
+            ),
+            source,
+            design: source,
+            class: class.to_string(),
+            disguise: Some(disguise),
+            raw: load_bytes(&export.write(&copy), export.format(), &NoResources, limits)?,
+        });
+    }
+    Ok(files)
 }
 
 impl DuplicatesReport {
     pub fn markdown(&self) -> String {
-        let mut levels = Table::new([
-            "min evidence",
-            "true pairs",
-            "found",
-            "correct",
-            "precision",
-            "recall",
+        let mut families = Table::new([
+            "family",
+            "expected",
+            "copies",
+            "`identical_geometry` P / R",
+            "`same_shape` P / R",
+            "pairs found / true (`same_shape`)",
         ]);
-        for l in &self.levels {
-            levels.row([
-                l.min_evidence.to_string(),
-                l.true_pairs.to_string(),
-                l.found_pairs.to_string(),
-                l.correct.to_string(),
-                score(l.precision),
-                score(l.recall),
+        for f in &self.families {
+            let at = |min: Evidence| {
+                f.levels
+                    .iter()
+                    .find(|l| l.min_evidence == min)
+                    .expect("every level is measured")
+            };
+            let (geometry, shape) = (at(Evidence::IdenticalGeometry), at(Evidence::SameShape));
+            families.row([
+                f.disguise.name().to_string(),
+                f.expected.map_or("none", Evidence::as_str).to_string(),
+                f.copies.to_string(),
+                format!("{} / {}", score(geometry.precision), score(geometry.recall)),
+                format!("{} / {}", score(shape.precision), score(shape.recall)),
+                format!("{} / {}", shape.found_pairs, shape.true_pairs),
             ]);
         }
-        let mut disguises = Table::new([
-            "copy",
-            "copies",
+        let mut copies = Table::new([
+            "family",
+            "vertices kept median",
             "candidates",
             "evidence found",
             "D2 median / max",
-            "aligned median / p95 / max",
-            "vertices median / p95 / max",
+            "aligned p99, RMS radii: median / p95 / max",
+            "aligned p99, triangle sizes: median / p95 / max",
+            "vertices p90, edges: median / p95 / max",
         ]);
-        for d in &self.disguises {
-            disguises.row([
-                format!("{:?}", d.disguise).to_lowercase(),
-                d.copies.to_string(),
-                d.candidates.to_string(),
-                d.evidence
+        let three = |d: &Distribution| format!("{:.4} / {:.4} / {:.4}", d.median, d.p95, d.max);
+        for f in &self.families {
+            copies.row([
+                f.disguise.name().to_string(),
+                format!("{:.2}", f.vertices_kept.median),
+                f.candidates.to_string(),
+                f.evidence
                     .iter()
                     .map(|(k, v)| format!("{k} {v}"))
                     .collect::<Vec<_>>()
                     .join(", "),
-                format!("{:.4} / {:.4}", d.d2.median, d.d2.max),
-                format!(
-                    "{:.4} / {:.4} / {:.4}",
-                    d.aligned.median, d.aligned.p95, d.aligned.max
-                ),
-                format!(
-                    "{:.4} / {:.4} / {:.4}",
-                    d.vertices.median, d.vertices.p95, d.vertices.max
-                ),
+                format!("{:.4} / {:.4}", f.d2.median, f.d2.max),
+                three(&f.aligned),
+                three(&f.aligned_local),
+                three(&f.vertices),
             ]);
         }
         let mut wrong = Table::new(["a", "b", "same class", "evidence", "score"]);
@@ -728,49 +816,52 @@ impl DuplicatesReport {
                 f.others.to_string(),
             ]);
         }
-        let mut nearest: Vec<&Aligned> = self.negatives.iter().collect();
-        nearest.sort_by(|x, y| {
-            x.deviation
-                .surfaces
-                .p99
-                .total_cmp(&y.deviation.surfaces.p99)
-        });
         let n = Distribution::of(
             self.negatives
                 .iter()
-                .map(|a| a.deviation.surfaces.p99)
+                .map(|a| a.deviation.surfaces.local.p99)
                 .collect(),
         );
+        let listed = |pairs: &[(String, String)], sign: &str| {
+            if pairs.is_empty() {
+                "none".to_string()
+            } else {
+                pairs
+                    .iter()
+                    .map(|(a, b)| format!("{a} {sign} {b}"))
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            }
+        };
         format!(
-            "# Near-duplicates: {} ({} half)\n\n{} models, each with a re-exported and a remeshed copy \
-             ({} copies). Thresholds (`similarity.duplicates`): `{}`. {} candidate pairs verified. \
-             Byte-identical models of the collection count as one model: {}; models of one design (`SAME_DESIGN`), as a `same_shape` pair: {}.\n\n## Pairs found\n\n{}\n## Each copy against its model\n\n{}\n\
-             ## Candidate filters\n\n{}\n## Hard negatives\n\nCandidate pairs of different models, 99th percentile of the aligned distances (RMS radii): \
-             {} pairs, smallest {:.4}, median {:.4}.\n\nFalse links:\n\n{}\n\
-             Seconds: copies {:.1}, signatures and shapes {:.1}, search {:.1}.\n",
+            "# Near-duplicates: {} ({} half)\n\n{} models, each with one copy of each family \
+             ({} copies), every family measured with only its copies mixed in. Thresholds \
+             (`similarity.duplicates`): `{}`. {} candidate pairs verified. Byte-identical \
+             models of the collection count as one model: {}; models of one design \
+             (`SAME_DESIGN`), as a `same_shape` pair: {}.\n\n## Pairs found, per family\n\n{}\n\
+             ## Each copy against its model\n\n{}\n## Candidate filters\n\n{}\n\
+             ## Hard negatives\n\nCandidate pairs of different models, 99th percentile of the \
+             aligned distances in triangle sizes: {} pairs, smallest {:.4}, median {:.4}.\n\n\
+             False links:\n\n{}\nSeconds: copies {:.1}, signatures and shapes {:.1}, search {:.1}.\n",
             self.collection,
             self.half,
             self.models,
             self.copies,
             serde_json::to_string(&self.params).expect("parameters serialise"),
             self.verified,
-            if self.identical_in_collection.is_empty() {
-                "none".to_string()
-            } else {
-                self.identical_in_collection.iter().map(|(a, b)| format!("{a} = {b}")).collect::<Vec<_>>().join(", ")
-            },
-            if self.same_design_in_collection.is_empty() {
-                "none".to_string()
-            } else {
-                self.same_design_in_collection.iter().map(|(a, b)| format!("{a} ~ {b}")).collect::<Vec<_>>().join(", ")
-            },
-            levels.markdown(),
-            disguises.markdown(),
+            listed(&self.identical_in_collection, "="),
+            listed(&self.same_design_in_collection, "~"),
+            families.markdown(),
+            copies.markdown(),
             filters.markdown(),
             n.count,
             n.min,
             n.median,
-            if self.false_links.is_empty() { "none.\n".to_string() } else { wrong.markdown() },
+            if self.false_links.is_empty() {
+                "none.\n".to_string()
+            } else {
+                wrong.markdown()
+            },
             self.seconds.copies,
             self.seconds.describe,
             self.seconds.search,

@@ -5,6 +5,7 @@
 //! weights ([`tune`]). [`report`] writes what they found as
 //! JSON, Markdown and plots.
 
+pub mod disguise;
 pub mod duplicates;
 pub mod metrics;
 pub mod partial;

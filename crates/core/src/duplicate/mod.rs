@@ -20,7 +20,7 @@ use std::str::FromStr;
 
 use serde::{Deserialize, Serialize};
 
-pub use shape::{Alignment, Deviation, Shape, Spread};
+pub use shape::{Alignment, Deviation, Distances, Reach, Shape, Spread};
 
 use crate::params::DuplicateParams;
 
@@ -96,7 +96,7 @@ impl Verdict {
 pub fn verify(a: &Shape, b: &Shape, params: &DuplicateParams) -> Option<Verdict> {
     judge(
         a.geometry_deviation(b, params.geometry),
-        |largest, surfaces_pass| a.align(b, largest, surfaces_pass),
+        |reach, surfaces_pass| a.align(b, reach, surfaces_pass),
         a.coarser(b),
         params,
     )
@@ -104,12 +104,12 @@ pub fn verify(a: &Shape, b: &Shape, params: &DuplicateParams) -> Option<Verdict>
 
 /// The verdict on a geometry deviation within `params.geometry` ([`Shape::geometry_deviation`];
 /// `None` when beyond) and, when that does not decide, an alignment ([`Shape::align`], the
-/// costly part, made only then and told the largest distance allowed and which surface
-/// statistics pass), `spacing` the coarser mesh's triangle size ([`Shape::coarser`]). The
-/// score is 1 less the largest share of its limit a statistic used.
+/// costly part, made only then and told how far a sample may lie and which surface
+/// statistics pass), `spacing` the coarser mesh's typical triangle size ([`Shape::coarser`]).
+/// The score is 1 less the largest share of its limit a statistic used.
 pub fn judge(
     deviation: Option<f64>,
-    alignment: impl FnOnce(f64, &dyn Fn(&Deviation) -> bool) -> Alignment,
+    alignment: impl FnOnce(Reach, &dyn Fn(&Deviation) -> bool) -> Alignment,
     spacing: f64,
     params: &DuplicateParams,
 ) -> Option<Verdict> {
@@ -119,27 +119,35 @@ pub fn judge(
             score: 1.0 - d / params.geometry,
         });
     }
-    let (mean, largest) = params.surface_limits(spacing);
-    let within = |s: &Spread| (s.mean / mean).max(s.max / largest);
+    // Each limit is met in either unit ([`Distances`]): RMS radii (or typical triangle sizes)
+    // for fine and uniform meshes, sizes of the triangles where the samples lie for the
+    // coarse parts of any mesh.
+    let mean = params.surface_limits(spacing).0;
+    let within = |s: &Distances| {
+        let mean = (s.absolute.mean / mean).min(
+            (s.local.mean / params.mean_per_triangle).max(s.absolute.mean / params.mean_at_most),
+        );
+        mean.max(s.reached.max)
+    };
     // A simplification may delete small pieces whole (a tree's leaves): forgiven when they
     // are few, and only for a copy whose every vertex lies on the other surface — two designs
     // that differ by a small part (CAPOD's guitars m109 and m119) have vertices off it.
     let forgivable = |d: &Deviation| d.deleted <= params.deleted;
     let surfaces = |d: &Deviation| {
-        if forgivable(d) && d.vertices.max <= params.vertices {
+        if forgivable(d) && d.vertices.max <= params.vertices_per_edge {
             within(&d.kept)
         } else {
             within(&d.surfaces)
         }
     };
     let verdict = |evidence, d: Deviation| {
-        let used = surfaces(&d).max(d.vertices.p90 / params.vertices);
+        let used = surfaces(&d).max(d.vertices.p90 / params.vertices_per_edge);
         (used <= 1.0).then_some(Verdict {
             evidence,
             score: 1.0 - used,
         })
     };
-    let Alignment { rotated, mirrored } = alignment(largest, &|d| {
+    let Alignment { rotated, mirrored } = alignment(Reach::new(params, spacing), &|d| {
         within(&d.surfaces) <= 1.0 || (forgivable(d) && within(&d.kept) <= 1.0)
     });
     verdict(Evidence::SameShape, rotated).or_else(|| verdict(Evidence::Mirrored, mirrored))

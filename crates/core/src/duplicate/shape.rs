@@ -5,8 +5,9 @@
 //! axes (second moments fix neither the axes' signs nor, when two are near-equal, their
 //! order, which remeshing can swap, nor then the axes in their plane at all: turns about the
 //! third are tried too), the best starts refined by ICP. What is
-//! left are the distances from each surface's samples to the other surface, in RMS radii;
-//! their mean and largest decide (`crate::duplicate::judge`).
+//! left are the distances from each surface's samples to the other surface, in RMS radii and
+//! in sizes of the coarser mesh's triangles there ([`Distances`]), and the coarser mesh's
+//! vertices' distances in lengths of their edges; these decide (`crate::duplicate::judge`).
 //!
 //! Distances and ICP come from [`crate::register`]. Types are glam's as parry re-exports them
 //! (`glamx`), f32 as parry's are.
@@ -17,6 +18,7 @@ use rand_chacha::ChaCha8Rng;
 
 use crate::mesh::weld::weld;
 use crate::mesh::RawMesh;
+use crate::params::DuplicateParams;
 use crate::register::{signed_permutations, Motion, Surface};
 use crate::{Error, Result};
 
@@ -55,10 +57,17 @@ pub struct Shape {
     on_small_piece: Vec<bool>,
     /// The canonical axes about which the other two moments are near-equal ([`NEAR_EQUAL`]).
     spins: Vec<usize>,
+    /// The triangle of each sample.
+    sampled: Vec<u32>,
+    /// Each triangle's longest edge: how far a remeshing that leaves this triangle may have
+    /// moved the surface under it.
+    sizes: Vec<f32>,
+    /// Each vertex's mean edge length.
+    edges: Vec<f32>,
     /// The principal axes as rows: `canonical = axes · (p − centroid) / radius`.
     axes: Mat3,
     /// The typical size of a triangle, `√(area / triangles)`, in RMS radii: how far a
-    /// remeshing at this resolution may move the surface.
+    /// remeshing at this resolution may move the surface on the whole.
     spacing: f64,
 }
 
@@ -69,22 +78,57 @@ pub struct Alignment {
     pub mirrored: Deviation,
 }
 
-/// How far two aligned shapes are apart, in RMS radii.
+/// How far two aligned shapes are apart.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
 pub struct Deviation {
     /// The distances from each surface's samples to the other surface: each statistic the
     /// larger of the two directions.
-    #[serde(flatten)]
-    pub surfaces: Spread,
+    pub surfaces: Distances,
     /// The same leaving out the samples of the finer mesh (the one with more vertices) that
-    /// lie on its small pieces farther than the largest distance allowed from the coarser:
-    /// the pieces a simplification deleted.
-    pub kept: Spread,
+    /// lie on its small pieces beyond [`Reach`] of the coarser: the pieces a simplification
+    /// deleted.
+    pub kept: Distances,
     /// The share of the finer mesh's samples left out of `kept`.
     pub deleted: f64,
-    /// The coarser mesh's vertices' distances from the finer surface
-    /// ([`Shape::vertex_fit`]).
+    /// The coarser mesh's vertices' distances from the finer surface ([`Shape::vertex_fit`]),
+    /// each over the mean length of the vertex's edges.
     pub vertices: Spread,
+}
+
+/// Distances from one surface to another, in two units.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct Distances {
+    /// In RMS radii.
+    pub absolute: Spread,
+    /// In sizes (longest edges) of the coarser mesh's triangle at the sample — its own for
+    /// its samples, the closest for the finer mesh's. A simplification moves the surface by
+    /// a fraction of the triangles it leaves, wherever they are large or small (a fin of
+    /// three triangles, a leg of a spider clustered on a coarse grid), while a pose or a
+    /// morph moves it whatever the triangles.
+    pub local: Spread,
+    /// Each distance over the [`Reach`] at its sample: beyond it above 1.
+    pub reached: Spread,
+}
+
+/// How far a sample may lie from the other surface and still be on it: `absolute` RMS radii
+/// or `local` sizes of the coarser mesh's triangle there ([`Distances`]), whichever is more —
+/// chosen per sample, as a tree's leaves lie far from its trunk's large triangles while a
+/// branch's small ones stay close.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Reach {
+    pub absolute: f64,
+    pub local: f64,
+}
+
+impl Reach {
+    /// The reach `params` allow, the coarser mesh of typical triangle size `spacing`
+    /// ([`Shape::coarser`]).
+    pub fn new(params: &DuplicateParams, spacing: f64) -> Self {
+        Self {
+            absolute: params.surface_limits(spacing).1,
+            local: params.largest_per_triangle,
+        }
+    }
 }
 
 /// Statistics of a set of distances.
@@ -125,10 +169,49 @@ impl Spread {
     }
 }
 
+impl Distances {
+    const NONE: Distances = Distances {
+        absolute: Spread::NONE,
+        local: Spread::NONE,
+        reached: Spread::NONE,
+    };
+
+    /// Of the samples' [`Sampled`] distances; none when there are none.
+    fn of(samples: impl Iterator<Item = Sampled>) -> Self {
+        let samples: Vec<Sampled> = samples.collect();
+        if samples.is_empty() {
+            return Self::NONE;
+        }
+        let of = |f: fn(&Sampled) -> f32| Spread::of(samples.iter().map(f).collect());
+        Self {
+            absolute: of(|s| s.distance),
+            local: of(|s| s.local),
+            reached: of(|s| s.reached),
+        }
+    }
+
+    fn larger(self, other: Self) -> Self {
+        Self {
+            absolute: self.absolute.larger(other.absolute),
+            local: self.local.larger(other.local),
+            reached: self.reached.larger(other.reached),
+        }
+    }
+}
+
+/// A sample's distance from the other surface in RMS radii, in triangle sizes, and over its
+/// [`Reach`].
+#[derive(Debug, Clone, Copy)]
+struct Sampled {
+    distance: f32,
+    local: f32,
+    reached: f32,
+}
+
 impl Deviation {
     const NONE: Deviation = Deviation {
-        surfaces: Spread::NONE,
-        kept: Spread::NONE,
+        surfaces: Distances::NONE,
+        kept: Distances::NONE,
         deleted: 1.0,
         vertices: Spread::NONE,
     };
@@ -156,10 +239,14 @@ impl Shape {
             .iter()
             .map(|&p| (axes * ((p - centroid) / radius)).as_vec3())
             .collect();
-        let (samples, sampled): (Vec<Vec3>, Vec<usize>) =
+        let (samples, sampled): (Vec<Vec3>, Vec<u32>) =
             sample(&canonical, &triangles, SAMPLES).into_iter().unzip();
         let on_small_piece = small_pieces(&canonical, &triangles);
-        let on_small_piece = sampled.iter().map(|&t| on_small_piece[t]).collect();
+        let on_small_piece = sampled
+            .iter()
+            .map(|&t| on_small_piece[t as usize])
+            .collect();
+        let (sizes, edges) = sizes(&canonical, &triangles);
         let [first, second, third] = eigen.eigenvalues.to_array();
         let spins = [(first / second, 2), (second / third, 0)]
             .into_iter()
@@ -173,6 +260,9 @@ impl Shape {
             samples,
             on_small_piece,
             spins,
+            sampled,
+            sizes,
+            edges,
             axes: axes.as_mat3(),
             spacing,
         })
@@ -210,13 +300,13 @@ impl Shape {
 
     /// Aligns `self` onto `other` from the starts ([`Shape::starts`]), refines the best of
     /// each handedness by ICP, and measures what is left: the surfaces' distances (leaving
-    /// out, for `kept`, small pieces of the finer mesh beyond `largest` of the coarser), and
+    /// out, for `kept`, small pieces of the finer mesh beyond `reach` of the coarser), and
     /// the vertices' ([`Shape::vertex_fit`], as costly again) only where `surfaces_pass`
     /// (infinite elsewhere).
     pub fn align(
         &self,
         other: &Shape,
-        largest: f64,
+        reach: Reach,
         surfaces_pass: impl Fn(&Deviation) -> bool,
     ) -> Alignment {
         let coarse = &self.samples[..COARSE.min(self.samples.len())];
@@ -240,9 +330,9 @@ impl Shape {
                 .take(REFINED)
                 .map(|&(_, s)| {
                     let motion = self.refined(other, s);
-                    (self.deviation(other, motion, largest as f32), motion)
+                    (self.deviation(other, motion, reach), motion)
                 })
-                .min_by(|a, b| a.0.surfaces.mean.total_cmp(&b.0.surfaces.mean))
+                .min_by(|a, b| (a.0.surfaces.absolute.mean).total_cmp(&b.0.surfaces.absolute.mean))
                 .map_or(Deviation::NONE, |(mut deviation, motion)| {
                     if surfaces_pass(&deviation) {
                         deviation.vertices = self.vertex_fit(other, motion);
@@ -305,39 +395,54 @@ impl Shape {
     }
 
     /// The surfaces' distances both ways once `self` is moved onto `other` by `motion`, and
-    /// without the finer mesh's small pieces farther than `largest` ([`Deviation::kept`]).
-    fn deviation(&self, other: &Shape, motion: Motion, largest: f32) -> Deviation {
-        let distances = |from: &Shape, to: &Shape, motion: Motion| -> Vec<f32> {
+    /// without the finer mesh's small pieces beyond `reach` ([`Deviation::kept`]).
+    fn deviation(&self, other: &Shape, motion: Motion, reach: Reach) -> Deviation {
+        let self_coarser = self.vertices() <= other.vertices();
+        // (distance, local distance) of each sample of `from`, `from_coarser` saying whose
+        // triangles set the local size. Both frames are in RMS radii.
+        let distances = |from: &Shape, to: &Shape, motion: Motion, from_coarser: bool| {
             from.samples
                 .iter()
-                .map(|&p| to.surface.distance(motion.apply(p)))
-                .collect()
+                .zip(&from.sampled)
+                .map(|(&p, &own)| {
+                    let (d, closest) = to.surface.distance_and_triangle(motion.apply(p));
+                    let size = if from_coarser {
+                        from.sizes[own as usize]
+                    } else {
+                        to.sizes[closest as usize]
+                    };
+                    let reach = (reach.absolute as f32).max(reach.local as f32 * size);
+                    Sampled {
+                        distance: d,
+                        local: d / size.max(f32::MIN_POSITIVE),
+                        reached: d / reach.max(f32::MIN_POSITIVE),
+                    }
+                })
+                .collect::<Vec<Sampled>>()
         };
         let (forth, back) = (
-            distances(self, other, motion),
-            distances(other, self, motion.inverse()),
+            distances(self, other, motion, self_coarser),
+            distances(other, self, motion.inverse(), !self_coarser),
         );
-        let self_finer = self.vertices() > other.vertices();
-        let (fine, finer) = if self_finer {
-            (&forth, self)
-        } else {
+        let (fine, finer) = if self_coarser {
             (&back, other)
+        } else {
+            (&forth, self)
         };
-        let kept: Vec<f32> = fine
+        let kept: Vec<Sampled> = fine
             .iter()
             .zip(&finer.on_small_piece)
-            .filter(|&(&d, &small)| !(small && d > largest))
-            .map(|(&d, _)| d)
+            .filter(|&(s, &small)| !(small && s.reached > 1.0))
+            .map(|(&s, _)| s)
             .collect();
         let deleted = 1.0 - kept.len() as f64 / fine.len() as f64;
         // A mesh all of small pieces, all far, keeps nothing.
-        let kept = if kept.is_empty() {
-            Spread::NONE
-        } else {
-            Spread::of(kept)
-        };
-        let (forth, back) = (Spread::of(forth), Spread::of(back));
-        let coarse = if self_finer { back } else { forth };
+        let kept = Distances::of(kept.into_iter());
+        let (forth, back) = (
+            Distances::of(forth.into_iter()),
+            Distances::of(back.into_iter()),
+        );
+        let coarse = if self_coarser { forth } else { back };
         Deviation {
             surfaces: forth.larger(back),
             kept: coarse.larger(kept),
@@ -348,10 +453,12 @@ impl Shape {
 
     /// The coarser mesh's (fewer vertices) vertices' distances from the finer surface once
     /// fitted onto it by ICP with a uniform scale, from the motion `onto` of `self` onto
-    /// `other`. A remeshing keeps its vertices on the surface it came from (an edge collapse
-    /// keeps a subset of them, a remesher projects onto it) while its faces cut chords, so
-    /// these stay near 0 for a remeshed copy however coarse, and a morph or another pose
-    /// moves them.
+    /// `other`, each over the vertex's mean edge length. A simplification keeps its vertices
+    /// on or near the surface it came from (an edge collapse keeps a subset of them, a
+    /// remesher projects onto it, a quadric collapse places each where the planes of the
+    /// faces it replaced meet, a clustering at the mean of nearby vertices) while its faces
+    /// cut chords, so these stay a small fraction of an edge however coarse the copy; a morph
+    /// or another pose moves vertices regardless of their edges.
     fn vertex_fit(&self, other: &Shape, onto: Motion) -> Spread {
         let (coarse, fine, start) = if self.vertices() <= other.vertices() {
             (self, other, onto)
@@ -359,19 +466,43 @@ impl Shape {
             (other, self, onto.inverse())
         };
         let all = coarse.surface.vertices();
-        let points: Vec<Vec3> = all
-            .iter()
-            .step_by(all.len().div_ceil(SAMPLES))
-            .map(|&p| start.apply(p))
-            .collect();
+        let step = all.len().div_ceil(SAMPLES);
+        let points: Vec<Vec3> = all.iter().step_by(step).map(|&p| start.apply(p)).collect();
         let fit = fine.surface.icp(&points, VERTEX_ROUNDS, true);
+        let scale = start.scale * fit.scale;
         Spread::of(
             points
                 .iter()
-                .map(|&p| fine.surface.distance(fit.apply(p)))
+                .zip(coarse.edges.iter().step_by(step))
+                .map(|(&p, &edge)| {
+                    fine.surface.distance(fit.apply(p)) / (edge * scale).max(f32::MIN_POSITIVE)
+                })
                 .collect(),
         )
     }
+}
+
+/// Each triangle's longest edge and each vertex's mean edge length.
+fn sizes(positions: &[Vec3], triangles: &[[u32; 3]]) -> (Vec<f32>, Vec<f32>) {
+    let mut sum = vec![(0.0f32, 0u32); positions.len()];
+    let longest = triangles
+        .iter()
+        .map(|t| {
+            (0..3)
+                .map(|k| {
+                    let (a, b) = (t[k] as usize, t[(k + 1) % 3] as usize);
+                    let length = positions[a].distance(positions[b]);
+                    for v in [a, b] {
+                        sum[v].0 += length;
+                        sum[v].1 += 1;
+                    }
+                    length
+                })
+                .fold(0.0f32, f32::max)
+        })
+        .collect();
+    let mean = sum.iter().map(|&(s, n)| s / n.max(1) as f32).collect();
+    (longest, mean)
 }
 
 /// Whether each triangle lies on a small connected piece of the mesh ([`SMALL_PIECE`]).
@@ -419,7 +550,7 @@ fn moments(positions: &[DVec3], triangles: &[[u32; 3]]) -> (DVec3, DMat3, f64) {
 
 /// `n` points uniform in area over the triangles, each with its triangle, from a fixed seed:
 /// the same mesh gives the same samples.
-fn sample(positions: &[Vec3], triangles: &[[u32; 3]], n: usize) -> Vec<(Vec3, usize)> {
+fn sample(positions: &[Vec3], triangles: &[[u32; 3]], n: usize) -> Vec<(Vec3, u32)> {
     let mut cumulative = Vec::with_capacity(triangles.len());
     let mut total = 0.0f64;
     for t in triangles {
@@ -436,7 +567,10 @@ fn sample(positions: &[Vec3], triangles: &[[u32; 3]], n: usize) -> Vec<(Vec3, us
                 .min(triangles.len() - 1);
             let [a, b, c] = triangles[i].map(|v| positions[v as usize]);
             let (r1, r2) = (rng.gen::<f32>().sqrt(), rng.gen::<f32>());
-            (a * (1.0 - r1) + b * (r1 * (1.0 - r2)) + c * (r1 * r2), i)
+            (
+                a * (1.0 - r1) + b * (r1 * (1.0 - r2)) + c * (r1 * r2),
+                i as u32,
+            )
         })
         .collect()
 }
@@ -445,6 +579,11 @@ fn sample(positions: &[Vec3], triangles: &[[u32; 3]], n: usize) -> Vec<(Vec3, us
 mod tests {
     use super::*;
     use glam::DQuat;
+
+    const REACH: Reach = Reach {
+        absolute: 0.08,
+        local: 1.0,
+    };
 
     /// Three bars of lengths 1, 2 and 3 along the axes from one corner: a chiral shape (no
     /// rotation maps it onto its mirror image) with distinct principal moments.
@@ -496,8 +635,11 @@ mod tests {
         let turn = DQuat::from_axis_angle(glam::DVec3::new(1.0, 2.0, 0.5).normalize(), 1.1);
         let rotated = Shape::new(&moved(&raw, |p| turn * p), 1e-6).unwrap();
         assert_eq!(rotated.geometry_deviation(&shape, 1e-2), None);
-        let alignment = rotated.align(&shape, 0.08, |_| true);
-        assert!(alignment.rotated.surfaces.max < 1e-3, "{alignment:?}");
+        let alignment = rotated.align(&shape, REACH, |_| true);
+        assert!(
+            alignment.rotated.surfaces.absolute.max < 1e-3,
+            "{alignment:?}"
+        );
     }
 
     #[test]
@@ -505,8 +647,14 @@ mod tests {
         let raw = lopsided();
         let shape = Shape::new(&raw, 1e-6).unwrap();
         let mirror = Shape::new(&moved(&raw, |p| glam::DVec3::new(-p.x, p.y, p.z)), 1e-6).unwrap();
-        let alignment = mirror.align(&shape, 0.08, |_| true);
-        assert!(alignment.mirrored.surfaces.max < 1e-3, "{alignment:?}");
-        assert!(alignment.rotated.surfaces.mean > 1e-2, "{alignment:?}");
+        let alignment = mirror.align(&shape, REACH, |_| true);
+        assert!(
+            alignment.mirrored.surfaces.absolute.max < 1e-3,
+            "{alignment:?}"
+        );
+        assert!(
+            alignment.rotated.surfaces.absolute.mean > 1e-2,
+            "{alignment:?}"
+        );
     }
 }
