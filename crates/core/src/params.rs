@@ -569,17 +569,17 @@ pub struct DuplicateParams {
 impl Default for DuplicateParams {
     fn default() -> Self {
         Self {
-            d2: 0.08,
+            d2: 0.1,
             lfd: 0.03,
             candidates: 32,
             mean: 0.006,
             mean_per_spacing: 0.2,
-            mean_at_most: 0.025,
+            mean_at_most: 0.02,
             mean_per_triangle: 0.1,
             largest: 0.08,
             largest_per_spacing: 1.0,
             largest_per_triangle: 1.5,
-            vertices_per_edge: 0.12,
+            vertices_per_edge: 0.105,
             deleted: 0.06,
             geometry: 1e-4,
         }

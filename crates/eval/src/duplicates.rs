@@ -160,8 +160,8 @@ pub struct DuplicatesReport {
     /// Verified links between files that are not one asset (false positives), and their
     /// classes.
     pub false_links: Vec<FalseLink>,
-    /// Candidate pairs of different models and their aligned deviation: how far the hardest
-    /// negatives stay from the `same_shape` threshold.
+    /// Candidate pairs of different models (of one design too, [`SAME_DESIGN`]) and their
+    /// aligned deviation: how far the hardest negatives stay from the `same_shape` threshold.
     pub negatives: Vec<Aligned>,
     /// How well each global descriptor's distance separates copies from other models, over
     /// every pair of files: what a candidate filter can use.
@@ -220,14 +220,18 @@ pub struct Family {
     pub worst: Vec<Aligned>,
 }
 
-/// Two files and their aligned deviation.
+/// Two files, their aligned deviation and the coarser one's typical triangle size (RMS
+/// radii): what a verdict is judged on, for choosing thresholds.
 #[derive(Debug, Clone, Serialize)]
 pub struct Aligned {
     pub a: String,
     pub b: String,
     /// `identical_geometry` passed (no alignment needed).
     pub identical: bool,
+    /// The pair passed the candidate filter.
+    pub candidate: bool,
     pub deviation: Deviation,
+    pub spacing: f64,
 }
 
 /// A pair verified as the service verifies it, with what the verdict was judged on.
@@ -235,6 +239,7 @@ struct Measured {
     verdict: Option<Verdict>,
     identical: bool,
     deviation: Deviation,
+    spacing: f64,
 }
 
 fn measure(x: &Shape, y: &Shape, p: &DuplicateParams) -> Measured {
@@ -246,6 +251,7 @@ fn measure(x: &Shape, y: &Shape, p: &DuplicateParams) -> Measured {
         verdict: judge(geometry, |_, _| alignment, spacing, p),
         identical: geometry.is_some(),
         deviation: alignment.rotated,
+        spacing,
     }
 }
 
@@ -443,12 +449,14 @@ pub fn run(
         .collect();
     let negatives: Vec<Aligned> = measured
         .iter()
-        .filter(|m| files[m.0].design != files[m.1].design)
+        .filter(|m| files[m.0].source != files[m.1].source)
         .map(|(a, b, m)| Aligned {
             a: files[*a].name.clone(),
             b: files[*b].name.clone(),
             identical: m.identical,
+            candidate: true,
             deviation: m.deviation,
+            spacing: m.spacing,
         })
         .collect();
     let candidate: std::collections::HashSet<(usize, usize)> = pairs.iter().copied().collect();
@@ -507,9 +515,11 @@ pub fn run(
                 .iter()
                 .map(|c| Aligned {
                     a: c.3.to_string(),
-                    b: String::new(),
+                    b: files[original[&files[number[c.3]].source]].name.clone(),
                     identical: c.0.identical,
+                    candidate: c.4,
                     deviation: c.0.deviation,
+                    spacing: c.0.spacing,
                 })
                 .collect();
             worst.sort_by(|x, y| {

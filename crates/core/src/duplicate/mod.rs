@@ -119,9 +119,10 @@ pub fn judge(
             score: 1.0 - d / params.geometry,
         });
     }
-    // Each limit is met in either unit ([`Distances`]): RMS radii (or typical triangle sizes)
-    // for fine and uniform meshes, sizes of the triangles where the samples lie for the
-    // coarse parts of any mesh.
+    // Each limit is met in either unit ([`Distances`]): the mean within its limit in RMS radii
+    // (or the coarser mesh's typical triangle size), or within `mean_per_triangle` sizes of
+    // the triangles where the samples lie and `mean_at_most` RMS radii; every sample within
+    // its [`Reach`], chosen per sample.
     let mean = params.surface_limits(spacing).0;
     let within = |s: &Distances| {
         let mean = (s.absolute.mean / mean).min(
