@@ -160,8 +160,11 @@ pub struct DuplicatesReport {
     /// Verified links between files that are not one asset (false positives), and their
     /// classes.
     pub false_links: Vec<FalseLink>,
-    /// Candidate pairs of different models (of one design too, [`SAME_DESIGN`]) and their
-    /// aligned deviation: how far the hardest negatives stay from the `same_shape` threshold.
+    /// The 99th percentile of the aligned distances, in triangle sizes, of every candidate
+    /// pair of different models (of one design too, [`SAME_DESIGN`]).
+    pub negatives_local_p99: Distribution,
+    /// The [`HARDEST`] of those pairs, nearest the reach first, with their aligned deviation:
+    /// how far the hardest negatives stay from the `same_shape` thresholds.
     pub negatives: Vec<Aligned>,
     /// How well each global descriptor's distance separates copies from other models, over
     /// every pair of files: what a candidate filter can use.
@@ -447,7 +450,7 @@ pub fn run(
             }
         })
         .collect();
-    let negatives: Vec<Aligned> = measured
+    let mut negatives: Vec<Aligned> = measured
         .iter()
         .filter(|m| files[m.0].source != files[m.1].source)
         .map(|(a, b, m)| Aligned {
@@ -459,6 +462,17 @@ pub fn run(
             spacing: m.spacing,
         })
         .collect();
+    let negatives_local_p99 = Distribution::of(
+        negatives
+            .iter()
+            .map(|a| a.deviation.surfaces.local.p99)
+            .collect(),
+    );
+    negatives.sort_by(|x, y| {
+        let key = |a: &Aligned| a.deviation.surfaces.reached.max;
+        key(x).total_cmp(&key(y))
+    });
+    negatives.truncate(HARDEST);
     let candidate: std::collections::HashSet<(usize, usize)> = pairs.iter().copied().collect();
     let original: HashMap<usize, usize> = files
         .iter()
@@ -553,6 +567,7 @@ pub fn run(
         same_design_in_collection,
         families,
         false_links,
+        negatives_local_p99,
         negatives,
         filters,
         seconds: Seconds {
@@ -562,6 +577,10 @@ pub fn run(
         },
     })
 }
+
+/// Hard negatives kept in the report: every candidate pair's deviation would make it tens of
+/// megabytes.
+const HARDEST: usize = 300;
 
 /// The evidence files `a` and `b` should be linked by, if they are one asset: files of one
 /// model by the weaker of their disguises' (`None` when either is another asset), files of
@@ -826,12 +845,7 @@ impl DuplicatesReport {
                 f.others.to_string(),
             ]);
         }
-        let n = Distribution::of(
-            self.negatives
-                .iter()
-                .map(|a| a.deviation.surfaces.local.p99)
-                .collect(),
-        );
+        let n = &self.negatives_local_p99;
         let listed = |pairs: &[(String, String)], sign: &str| {
             if pairs.is_empty() {
                 "none".to_string()
