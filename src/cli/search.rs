@@ -2,6 +2,7 @@
 //! [--part-scale R]] [--json]`.
 
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 use std::time::Instant;
 
 use anyhow::Context;
@@ -10,10 +11,11 @@ use rayon::prelude::*;
 use serde::Serialize;
 
 use salient_core::collection::{find_meshes, SignatureCache, Source};
-use salient_core::descriptor::patch::Packed;
+use salient_core::descriptor::patch::PackedPiece;
 use salient_core::mesh::load_path;
-use salient_core::partial::{by_residual, nearest_first, Part, Probe, Target};
-use salient_core::rank::{Index, Method, Request, Search};
+use salient_core::params::MeshParams;
+use salient_core::partial::{self, PartQuery, SearchError, Target};
+use salient_core::rank::{Index, Method, Request, Scope, Search};
 use salient_core::signature::Signature;
 use salient_core::Limits;
 
@@ -84,11 +86,10 @@ struct Row {
     residual: Option<f64>,
 }
 
-/// What is searched for: a whole model, or a part of one (with its registration probe, when
-/// it has area).
+/// What is searched for: a whole model, or a part of one.
 enum Query {
     Whole(Box<Signature>),
-    Part(Part, Option<Box<Probe>>),
+    Part(Box<PartQuery>),
 }
 
 #[derive(Serialize)]
@@ -111,11 +112,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         let scales = params.similarity.partial.sizes(args.part_scale);
         let raw =
             load_path(&args.query, &limits).with_context(|| args.query.display().to_string())?;
-        Query::Part(
-            Part::extract(&raw, &params, &scales, &params.similarity)
+        Query::Part(Box::new(
+            PartQuery::extract(&raw, &params, &scales)
                 .with_context(|| args.query.display().to_string())?,
-            Probe::new(&raw).map(Box::new),
-        )
+        ))
     } else if args
         .query
         .extension()
@@ -182,57 +182,46 @@ pub fn run(args: Args) -> anyhow::Result<()> {
 
     let clock = Instant::now();
     let unreadable = "cannot read the index's file in the temporary folder";
-    let ranking = match &query {
-        Query::Whole(signature) => index
-            .search(&Request::model(signature, method, args.k))
-            .context(unreadable)?,
-        Query::Part(part, probe) => {
-            // The patches of every model, cached beside the signatures, nearest the part
-            // first, as the service keeps them.
-            let nearest: Vec<(f64, String)> = match probe {
-                Some(probe) => {
-                    let piece = Packed::piece(probe.description());
-                    indexed
-                        .par_iter()
-                        .filter_map(|(id, path)| {
-                            let packed = cache.patches(path, &limits).ok()?;
-                            Some((packed.nearest(&piece), id.clone()))
-                        })
-                        .collect()
-                }
-                None => Vec::new(),
+    let (results, evaluated, pruned) = match &query {
+        Query::Whole(signature) => {
+            let ranking = index
+                .search(&Request::model(signature, method, args.k))
+                .context(unreadable)?;
+            let rows = ranking.hits.into_iter().map(|hit| Row {
+                rank: 0,
+                id: hit.id,
+                distance: hit.distance,
+                part_scale: None,
+                residual: None,
+            });
+            (rows.collect(), ranking.evaluated, ranking.pruned)
+        }
+        Query::Part(part) => {
+            let folder = Folder {
+                root: &args.collection,
+                indexed: &indexed,
+                cache: &cache,
+                limits: &limits,
+                params: &params.mesh,
             };
-            let nearest = nearest_first(nearest);
             let verified = params.similarity.partial.verified;
-            index
-                .search(&Request::part(part, &nearest, verified, args.k))
-                .context(unreadable)?
+            let ranking =
+                partial::search(part, &index, Scope::default(), &folder, verified, args.k)
+                    .map_err(|e| match e {
+                        SearchError::Index(e) => anyhow::Error::new(e).context(unreadable),
+                        SearchError::Library(e) => e,
+                    })?;
+            let rows = ranking.hits.into_iter().map(|hit| Row {
+                rank: 0,
+                id: hit.id,
+                distance: hit.distance,
+                part_scale: hit.part_scale,
+                residual: hit.registration.map(|r| r.residual),
+            });
+            (rows.collect::<Vec<_>>(), ranking.evaluated, ranking.pruned)
         }
     };
-    let candidates = ranking.candidates;
-    let mut results: Vec<Row> = ranking
-        .hits
-        .into_iter()
-        .enumerate()
-        .map(|(i, hit)| Row {
-            rank: i + 1,
-            id: hit.id,
-            distance: hit.distance,
-            part_scale: hit.part_scale,
-            residual: None,
-        })
-        .collect();
-    if let Query::Part(_, Some(probe)) = &query {
-        for row in &mut results[..candidates] {
-            let path = args.collection.join(&row.id);
-            let raw = load_path(&path, &limits).with_context(|| path.display().to_string())?;
-            let target =
-                Target::new(&raw, &params.mesh).with_context(|| path.display().to_string())?;
-            row.residual = Some(probe.residual(&target));
-        }
-        by_residual(&mut results[..candidates], |row| row.residual);
-    }
-    results.truncate(args.k);
+    let mut results: Vec<Row> = results;
     for (i, row) in results.iter_mut().enumerate() {
         row.rank = i + 1;
     }
@@ -248,8 +237,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             extracted,
             cached,
             failed,
-            evaluated: ranking.evaluated,
-            pruned: ranking.pruned,
+            evaluated,
+            pruned,
             index_seconds,
             search_seconds,
         };
@@ -273,8 +262,40 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             index.len(),
             failed.len(),
             search_seconds * 1e3,
-            ranking.evaluated
+            evaluated
         );
     }
     Ok(())
+}
+
+/// The collection's meshes as partial search verifies against them: their patches from the
+/// cache (made when missing), their files loaded and prepared as targets.
+struct Folder<'a> {
+    root: &'a Path,
+    indexed: &'a [(String, &'a PathBuf)],
+    cache: &'a SignatureCache,
+    limits: &'a Limits,
+    params: &'a MeshParams,
+}
+
+impl partial::Library for Folder<'_> {
+    type Error = anyhow::Error;
+
+    fn nearest(&self, piece: &PackedPiece) -> anyhow::Result<Vec<(f64, String)>> {
+        Ok(self
+            .indexed
+            .par_iter()
+            .filter_map(|(id, path)| {
+                let packed = self.cache.patches(path, self.limits).ok()?;
+                Some((packed.nearest(piece), id.clone()))
+            })
+            .collect())
+    }
+
+    fn target(&self, id: &str) -> anyhow::Result<Option<Arc<Target>>> {
+        let path = self.root.join(id);
+        let raw = load_path(&path, self.limits).with_context(|| path.display().to_string())?;
+        let target = Target::new(&raw, self.params).with_context(|| path.display().to_string())?;
+        Ok(Some(Arc::new(target)))
+    }
 }

@@ -8,9 +8,15 @@ use salient_core::descriptor::patch::{piece, piece_distance, Layout, Packed, Pat
 use salient_core::mesh::cut::cut;
 use salient_core::mesh::RawMesh;
 use salient_core::params::Params;
-use salient_core::partial::{stored_patches, Part, Probe, Target};
+use std::sync::Arc;
+
+use salient_core::descriptor::patch::PackedPiece;
+use salient_core::partial::{
+    self, stored_patches, Library, Part, PartQuery, Probe, SearchError, Target,
+};
 use salient_core::pipeline::compute;
-use salient_core::rank::{Index, Request, Search};
+use salient_core::rank::{Index, Request, Scope, Search};
+use salient_core::register::Surface;
 use salient_core::similarity::{part_in, CostMatrix, Features};
 use salient_server::store::{Derived, InMemoryStore, Store};
 use serde_json::Value;
@@ -348,6 +354,140 @@ fn the_patches_nearest_are_verified_first_then_the_fits_best_of_the_models_witho
     );
 }
 
+/// A library held in memory, as the evaluation holds one: every model's target and stored
+/// patches; `unprepared` models have patches but no target (their upload no longer loads),
+/// and a `down` library fails as a store that went away.
+struct Shelf {
+    models: Vec<(&'static str, Arc<Target>, Packed)>,
+    unprepared: &'static [&'static str],
+    down: bool,
+}
+
+impl Shelf {
+    fn of(models: &[(&'static str, RawMesh)], params: &Params) -> Self {
+        let models = models
+            .iter()
+            .map(|(id, mesh)| {
+                let target = Target::new(mesh, &params.mesh).unwrap();
+                (
+                    *id,
+                    Arc::new(target),
+                    stored_patches(mesh, &params.mesh).unwrap(),
+                )
+            })
+            .collect();
+        Self {
+            models,
+            unprepared: &[],
+            down: false,
+        }
+    }
+}
+
+impl Library for Shelf {
+    type Error = &'static str;
+
+    fn nearest(&self, piece: &PackedPiece) -> Result<Vec<(f64, String)>, &'static str> {
+        if self.down {
+            return Err("the store is down");
+        }
+        let distances = self
+            .models
+            .iter()
+            .map(|(id, _, p)| (p.nearest(piece), id.to_string()));
+        Ok(distances.collect())
+    }
+
+    fn target(&self, id: &str) -> Result<Option<Arc<Target>>, &'static str> {
+        let found = self.models.iter().find(|(m, ..)| *m == id);
+        Ok(found
+            .filter(|_| !self.unprepared.contains(&id))
+            .map(|(_, t, _)| t.clone()))
+    }
+}
+
+/// How far the farthest vertex of `part`, moved by `placement`, lies off `model`'s surface.
+fn farthest_off(model: &RawMesh, placement: glam::DMat4, part: &RawMesh) -> f32 {
+    let narrow = |p: DVec3| glamx::Vec3::new(p.x as f32, p.y as f32, p.z as f32);
+    let positions = model.positions.iter().map(|&p| narrow(p)).collect();
+    let surface = Surface::new(positions, model.triangles.clone()).unwrap();
+    part.positions
+        .iter()
+        .map(|&p| surface.distance(narrow(placement.transform_point3(p))))
+        .fold(0.0, f32::max)
+}
+
+fn indexed(models: &[(&'static str, RawMesh)], params: &Params) -> Index {
+    let mut index = Index::new(params.similarity.clone());
+    for (id, mesh) in models {
+        index.insert(*id, &compute(mesh, params).unwrap()).unwrap();
+    }
+    index
+}
+
+/// The one partial search: the patches' nearest registered and ranked by residual, the source
+/// first wherever the part is moved; a model that cannot be prepared ranks after them,
+/// unverified; a library that fails fails the search.
+#[test]
+fn a_partial_search_registers_the_patches_nearest_and_ranks_the_source_first() {
+    let params = Params::default();
+    let models = collection();
+    let index = indexed(&models, &params);
+    let mut shelf = Shelf::of(&models, &params);
+    let scales = &params.similarity.partial.scales;
+    let disguise = shapes::random_motion(5) * glam::DMat4::from_scale(DVec3::splat(0.1));
+    let disguised = shapes::transformed(&spike(), disguise);
+    for (part, moved) in [(spike(), glam::DMat4::IDENTITY), (disguised, disguise)] {
+        let query = PartQuery::extract(&part, &params, scales).unwrap();
+        let ranking = partial::search(&query, &index, Scope::default(), &shelf, 4, 3).unwrap();
+        assert_eq!(ranking.verified, 4);
+        assert_eq!(ranking.hits.len(), 3, "truncated to k after verification");
+        assert_eq!(ranking.hits[0].id, "star", "{ranking:?}");
+        let residuals: Vec<f64> = ranking.hits.iter().map(|h| h.residual().unwrap()).collect();
+        assert!(residuals[0] < 0.01, "{residuals:?}");
+        assert!(residuals.windows(2).all(|w| w[0] <= w[1]), "{residuals:?}");
+        // Placed in the star, the part lies on its surface (on one of its five like tips;
+        // the star's radius is 1.3).
+        let placement = ranking.hits[0].registration.unwrap().placement;
+        let off = farthest_off(&models[0].1, placement * moved, &spike());
+        assert!(off < 0.03, "{off}");
+    }
+
+    let query = PartQuery::extract(&spike(), &params, scales).unwrap();
+    shelf.unprepared = &["star"];
+    let ranking = partial::search(&query, &index, Scope::default(), &shelf, 4, 4).unwrap();
+    assert_eq!(ranking.hits[3].id, "star", "{ranking:?}");
+    assert_eq!(ranking.hits[3].registration, None);
+    assert!(ranking.hits[..3].iter().all(|h| h.registration.is_some()));
+
+    shelf.down = true;
+    let failed = partial::search(&query, &index, Scope::default(), &shelf, 4, 4);
+    assert!(matches!(
+        failed,
+        Err(SearchError::Library("the store is down"))
+    ));
+}
+
+/// What the evaluation counts as featureless: a flat disc from a tube's cap, a plane and a
+/// cap of a sphere are plain; a spike and a piece of the tube's side (curved one way) are not.
+#[test]
+fn plain_parts_are_told_from_parts_with_relief() {
+    let models = collection();
+    let tube = &models[2].1;
+    let disc = cut(tube, DVec3::new(0.0, 0.0, 1.0), 0.28).unwrap();
+    let side = cut(tube, DVec3::new(0.3, 0.0, 0.0), 0.5).unwrap();
+    let ball = cut(&models[1].1, DVec3::new(0.0, 0.0, 1.0), 0.6).unwrap();
+    for (name, part, plain) in [
+        ("disc", disc, true),
+        ("plane", shapes::plane(8, 1), true),
+        ("ball", ball, true),
+        ("spike", spike(), false),
+        ("side", side, false),
+    ] {
+        assert_eq!(Probe::new(&part).unwrap().is_plain(), plain, "{name}");
+    }
+}
+
 #[test]
 fn part_sizes_out_of_range_are_refused() {
     let params = Params::default();
@@ -398,6 +538,28 @@ async fn a_part_is_searched_over_http() {
         "{body}"
     );
 
+    assert!(
+        body["results"][0].get("placement").is_none(),
+        "only explained"
+    );
+
+    // Explained: where the part lies in each model it was registered into, which puts it on
+    // the star's surface.
+    let body = json(search("mode=partial&k=2&explain=true").await).await;
+    let placement: Vec<f64> = body["results"][0]["placement"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_f64().unwrap())
+        .collect();
+    let placement = glam::DMat4::from_cols_slice(&placement);
+    let off = farthest_off(&collection()[0].1, placement, &spike());
+    assert!(off < 0.03, "{off}: {body}");
+    assert_eq!(
+        body["results"][1]["placement"].as_array().unwrap().len(),
+        16
+    );
+
     // A known size is the only one tried.
     let body = json(search("mode=partial&part_scale=0.5").await).await;
     assert_eq!(body["part_sizes"][0]["scale"], 0.5);
@@ -411,7 +573,6 @@ async fn a_part_is_searched_over_http() {
 
     for bad in [
         "mode=partial&method=ecc",
-        "mode=partial&explain=true",
         "mode=partial&part_scale=0.1",
         "part_scale=0.5",
         "mode=parts",

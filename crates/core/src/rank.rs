@@ -403,8 +403,8 @@ pub enum Query<'a> {
         params: Option<&'a SimilarityParams>,
     },
     /// A piece of a model ([`crate::partial`]): the models that contain it. `nearest` are the
-    /// models nearest the part by their stored patches, nearest first
-    /// ([`crate::partial::nearest_first`]), of which `verified` become candidates to verify.
+    /// models nearest the part by their stored patches, nearest first, of which `verified`
+    /// become candidates to verify ([`crate::partial::search`]).
     Part {
         part: &'a Part,
         nearest: &'a [(f64, String)],

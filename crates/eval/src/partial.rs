@@ -1,15 +1,19 @@
-//! `salient eval partial`: how well a piece of a model finds its source (`docs/results/partial/`). Every
-//! model of a half gets three parts — each the surface inside a ball of 30–50 % of its radius
-//! around a random surface point, its largest connected piece ([`cut`]) — queried against the
-//! whole collection: by salient features ([`salient_core::rank::Query::Part`]), the same with its best
-//! `similarity.partial.verified` registered into each model's surface ([`Probe::residual`]:
-//! what `mode=partial` serves), as a whole model (the default method, as `/v1/search` without
-//! `mode`), and by patch descriptors ([`salient_core::descriptor::patch`]) alone and verified (not
-//! stored or served). Reported: how often the source ranks first and within the top 5, and
-//! how often the first result is of the source's class.
+//! `salient eval partial`: how well a piece of a model finds its source (`docs/results/partial/`).
+//! Parts are cut from every model of a half by two protocols: today's (three balls of 30–50 %
+//! of the model's radius around random surface points, [`Protocol::Ball`]) and one part per
+//! share of the surface ([`Protocol::Share`]: 5, 15, 30 and 50 %), each its largest connected
+//! piece ([`cut`]). Each is queried against the whole collection by [`partial::search`] (what
+//! `mode=partial` serves), and, for today's protocol, also by its salient-feature fit alone,
+//! its stored patches alone and as a whole model. Reported per protocol: how often the source
+//! ranks first and within the top 5, and how often the first result is of the source's class;
+//! featureless parts apart too: plain ones, within 2 % of their size of a plane or a sphere
+//! ([`salient_core::partial::Probe::is_plain`]). (Extraction finds a salient feature on any
+//! piece, a flat one too, so "no salient feature detected" would count none.)
 
-use std::collections::{BTreeMap, BTreeSet};
+use std::collections::BTreeMap;
+use std::convert::Infallible;
 use std::path::Path;
+use std::sync::Arc;
 use std::time::Instant;
 
 use glam::DVec3;
@@ -24,32 +28,63 @@ use super::study::Half;
 use super::{LabelledCollection, Progress};
 use salient_core::collection::SignatureCache;
 use salient_core::descriptor::d2::sample_surface;
-use salient_core::descriptor::patch::{Layout, Packed};
+use salient_core::descriptor::patch::{Layout, Packed, PackedPiece};
 use salient_core::mesh::cut::cut;
 use salient_core::mesh::prepare::normalisation;
 use salient_core::mesh::{load_path, RawMesh};
 use salient_core::params::{Limits, Params, PartialParams};
-use salient_core::partial::{by_residual, nearest_first, stored_patches, Part, Probe, Target};
+use salient_core::partial::{self, stored_patches, Library, PartQuery, SearchError, Target};
 use salient_core::pipeline::compute;
-use salient_core::rank::{Hit, Index, Method, Ranking, Request, Search};
+use salient_core::rank::{Hit, Index, Method, Request, Scope, Search};
 use salient_core::salient::area as triangle_area;
 use salient_core::Result;
 
 /// Results within which the source's rank is recorded.
 const DEPTH: usize = 10;
 
-/// The ball around the cut point, as a fraction of the model's radius (SPEC §1.4's).
+/// Today's protocol: the ball around the cut point, as a fraction of the model's radius
+/// (SPEC §1.4's), three parts a model.
 const BALL: std::ops::Range<f64> = 0.3..0.5;
+const BALL_PARTS: usize = 3;
 
-/// Parts cut from each model: one would leave the rates at the mercy of a few cuts.
-const PARTS: usize = 3;
+/// The shares of the surface parts are cut to, one part a model each.
+const SHARES: [f64; 4] = [0.05, 0.15, 0.3, 0.5];
+
+/// A part cut to a share keeps between these multiples of it.
+const SHARE_TOLERANCE: std::ops::RangeInclusive<f64> = 0.8..=1.25;
+
+/// Bisection steps on the ball's radius for a share.
+const BISECTIONS: usize = 16;
 
 /// Random cut points tried per part before giving up on it.
 const ATTEMPTS: usize = 8;
 
-/// A part keeps at least this share of its model's area, and at most this share: a sliver
-/// says nothing, and a ball that swallows the model is not a part.
+/// A ball part keeps at least this share of its model's area, and at most this share: a
+/// sliver says nothing, and a ball that swallows the model is not a part.
 const AREA_SHARE: std::ops::RangeInclusive<f64> = 0.02..=0.8;
+
+/// How a part was cut.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Protocol {
+    /// A ball of [`BALL`] × the model's radius around a random surface point.
+    Ball,
+    /// The share of the model's surface, within [`SHARE_TOLERANCE`].
+    Share(f64),
+}
+
+impl Protocol {
+    fn all() -> impl Iterator<Item = Self> {
+        std::iter::once(Self::Ball).chain(SHARES.map(Self::Share))
+    }
+
+    fn name(self) -> String {
+        match self {
+            Self::Ball => "ball 30–50 % of the radius".to_string(),
+            Self::Share(share) => format!("{:.0} % of the surface", share * 100.0),
+        }
+    }
+}
 
 /// What the benchmark found.
 #[derive(Debug, Clone, Serialize)]
@@ -58,19 +93,35 @@ pub struct PartialReport {
     pub half: String,
     pub models: usize,
     pub params: PartialParams,
-    /// One row per search mode: `partial` and `whole`.
-    pub modes: Vec<ModeResult>,
-    /// Per class of the source, the partial mode's rates.
-    pub per_class: BTreeMap<String, ModeResult>,
+    /// Per protocol, what `mode=partial` serves: all parts, and the featureless ones.
+    pub protocols: Vec<ProtocolResult>,
+    /// Parts of at least 15 % of the surface together (the shares' protocols).
+    pub from_15_percent: Rates,
+    /// Today's protocol by each search mode.
+    pub modes: Vec<Rates>,
+    /// Per class of the source, what is served for parts of at least 15 % of the surface.
+    pub per_class: BTreeMap<String, Rates>,
     pub parts: Vec<PartResult>,
-    /// Models no part could be cut from (every attempt outside [`AREA_SHARE`]).
-    pub uncut: Vec<String>,
+    /// Per protocol, models no part could be cut from.
+    pub uncut: Vec<(Protocol, Vec<String>)>,
     pub seconds: Seconds,
 }
 
-/// The rates of one search mode over the parts.
+/// What is served for one protocol's parts.
 #[derive(Debug, Clone, Serialize)]
-pub struct ModeResult {
+pub struct ProtocolResult {
+    pub protocol: Protocol,
+    pub all: Rates,
+    pub featureless: Rates,
+    /// The median of the parts' area shares.
+    pub median_share: f64,
+    /// Parts the search refused (counted as misses).
+    pub refused: usize,
+}
+
+/// The rates of one search over a set of parts.
+#[derive(Debug, Clone, Serialize)]
+pub struct Rates {
     pub mode: String,
     pub parts: usize,
     pub source_first: f64,
@@ -78,11 +129,12 @@ pub struct ModeResult {
     pub class_first: f64,
 }
 
-/// One part and where each mode ranked its source.
+/// One part and where each search ranked its source.
 #[derive(Debug, Clone, Serialize)]
 pub struct PartResult {
     pub source: String,
     pub class: String,
+    pub protocol: Protocol,
     /// The ball's radius over the model's.
     pub ball: f64,
     /// The part's share of the model's area, and its radius over the model's.
@@ -91,21 +143,31 @@ pub struct PartResult {
     pub vertices: usize,
     /// Salient features at each size the part was described at.
     pub features: Vec<(f64, usize)>,
-    /// What each mode found.
-    pub partial: Found,
-    pub whole: Found,
-    pub patches: Found,
-    /// The fit's own best verified (what was served before patches were stored).
-    pub fit_verified: Found,
-    /// What `mode=partial` serves.
+    /// Plain: near a plane or a sphere.
+    pub featureless: bool,
+    /// What `mode=partial` serves ([`partial::search`]), and its wall time.
     pub verified: Found,
-    /// The part's registration residual in its source, when a ranking verified it.
+    pub search_ms: f64,
+    /// The part's registration residual in its source, when it was verified.
     pub source_residual: Option<f64>,
-    /// The size the part fitted its source at, when ranked.
-    pub fitted_scale: Option<f64>,
+    /// Today's protocol only: the salient-feature fit alone, the stored patches alone, the
+    /// part as a whole model.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub compared: Option<Compared>,
+    /// Why the part could not be searched (a miss in every rate).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub refused: Option<String>,
 }
 
-/// What one search mode found for a part.
+/// The other searches of a part of today's protocol.
+#[derive(Debug, Clone, Serialize)]
+pub struct Compared {
+    pub partial: Found,
+    pub patches: Found,
+    pub whole: Found,
+}
+
+/// What one search found for a part.
 #[derive(Debug, Clone, Serialize)]
 pub struct Found {
     /// The source's rank (1 = first) within the first [`DEPTH`].
@@ -115,10 +177,11 @@ pub struct Found {
 }
 
 impl Found {
-    fn of(hits: &[Hit], source: &str) -> Self {
+    fn of<'a>(ids: impl IntoIterator<Item = &'a str>, source: &str) -> Self {
+        let ids: Vec<&str> = ids.into_iter().take(DEPTH).collect();
         Self {
-            rank: hits.iter().position(|h| h.id == source).map(|r| r + 1),
-            first: hits.first().map(|h| h.id.clone()).unwrap_or_default(),
+            rank: ids.iter().position(|&id| id == source).map(|r| r + 1),
+            first: ids.first().map(|id| id.to_string()).unwrap_or_default(),
         }
     }
 }
@@ -129,19 +192,63 @@ pub struct Seconds {
     /// Describing the parts at every size, and as whole models.
     pub describe_parts: f64,
     pub search: f64,
+    /// The median and 90th percentile of one served search, wall.
+    pub search_p50: f64,
+    pub search_p90: f64,
 }
 
 /// A cut part and what it was cut from.
 struct Cut {
     source: usize,
+    protocol: Protocol,
     ball: f64,
     area_share: f64,
     size: f64,
     raw: RawMesh,
 }
 
-/// Runs the benchmark on `half` of `collection`, against all of it. Deterministic: the cut of
-/// each model is seeded by its position.
+/// The collection as the evaluation holds it: every model's target and stored patches.
+struct Loaded<'a> {
+    collection: &'a LabelledCollection,
+    targets: BTreeMap<&'a str, (Arc<Target>, Packed)>,
+}
+
+impl Library for Loaded<'_> {
+    type Error = Infallible;
+
+    fn nearest(&self, piece: &PackedPiece) -> std::result::Result<Vec<(f64, String)>, Infallible> {
+        Ok(self
+            .targets
+            .iter()
+            .map(|(id, (_, packed))| (packed.nearest(piece), id.to_string()))
+            .collect())
+    }
+
+    fn target(&self, id: &str) -> std::result::Result<Option<Arc<Target>>, Infallible> {
+        Ok(self.targets.get(id).map(|(t, _)| t.clone()))
+    }
+}
+
+impl Loaded<'_> {
+    /// The stored patches of every model, nearest `part` first.
+    fn by_patch(&self, query: &PartQuery) -> Vec<(f64, &str)> {
+        let Some(probe) = &query.probe else {
+            return Vec::new();
+        };
+        let piece = Packed::piece(probe.description());
+        let mut nearest: Vec<(f64, &str)> = self
+            .collection
+            .models
+            .iter()
+            .map(|m| (self.targets[m.id.as_str()].1.nearest(&piece), m.id.as_str()))
+            .collect();
+        nearest.sort_by(|a, b| a.0.total_cmp(&b.0).then_with(|| a.1.cmp(b.1)));
+        nearest
+    }
+}
+
+/// Runs the benchmark on `half` of `collection`, against all of it. Deterministic: the cuts of
+/// each model are seeded by its position.
 pub fn run(
     collection: &LabelledCollection,
     half: Half,
@@ -152,28 +259,32 @@ pub fn run(
 ) -> Result<PartialReport> {
     let clock = Instant::now();
     let (stored, _) = signatures(collection, cache, params, limits, None, progress)?;
+    let io = |e| salient_core::Error::Io {
+        path: std::env::temp_dir(),
+        source: e,
+    };
     let mut index = Index::new(params.similarity.clone());
     for (model, signature) in collection.models.iter().zip(&stored) {
-        index
-            .insert(model.id.as_str(), signature)
-            .map_err(|e| salient_core::Error::Io {
-                path: std::env::temp_dir(),
-                source: e,
-            })?;
+        index.insert(model.id.as_str(), signature).map_err(io)?;
     }
     progress.start("patches", collection.models.len());
-    let targets: Vec<(Target, Packed)> = collection
+    let targets = collection
         .models
         .par_iter()
         .map(|m| {
             let raw = load_path(&m.path, limits)?;
             progress.advance(&m.id);
+            let target = Target::new(&raw, &params.mesh)?;
             Ok((
-                Target::new(&raw, &params.mesh)?,
-                stored_patches(&raw, &params.mesh)?,
+                m.id.as_str(),
+                (Arc::new(target), stored_patches(&raw, &params.mesh)?),
             ))
         })
         .collect::<Result<_>>()?;
+    let library = Loaded {
+        collection,
+        targets,
+    };
     progress.finish();
     let signatures_seconds = clock.elapsed().as_secs_f64();
 
@@ -185,123 +296,122 @@ pub fn run(
         .map(|&i| {
             let raw = load_path(&collection.models[i].path, limits)?;
             progress.advance(&collection.models[i].id);
-            Ok(cut_parts(i, &raw))
+            Ok(Protocol::all()
+                .flat_map(|p| cut_parts(i, &raw, p))
+                .collect())
         })
         .collect::<Result<_>>()?;
     progress.finish();
-    let uncut = chosen
-        .iter()
-        .zip(&cuts)
-        .filter(|(_, c)| c.is_empty())
-        .map(|(&i, _)| collection.models[i].id.clone())
+    let uncut = Protocol::all()
+        .map(|p| {
+            let models = chosen
+                .iter()
+                .zip(&cuts)
+                .filter(|(_, c)| !c.iter().any(|c| c.protocol == p))
+                .map(|(&i, _)| collection.models[i].id.clone());
+            (p, models.collect())
+        })
         .collect();
     let cuts: Vec<Cut> = cuts.into_iter().flatten().collect();
     let scales = &params.similarity.partial.scales;
     progress.start("describe", cuts.len());
-    let described = cuts
+    // A part the service would refuse (too few vertices once welded: a low-poly model's
+    // triangle or two) is a miss, its error kept.
+    let described: Vec<std::result::Result<_, String>> = cuts
         .par_iter()
         .map(|c| {
-            let part = Part::extract(&c.raw, params, scales, &params.similarity)?;
-            let whole = compute(&c.raw, params)?;
+            let described = PartQuery::extract(&c.raw, params, scales).and_then(|query| {
+                let whole = match c.protocol {
+                    Protocol::Ball => Some(compute(&c.raw, params)?),
+                    Protocol::Share(_) => None,
+                };
+                Ok((query, whole))
+            });
             progress.advance(&collection.models[c.source].id);
-            Ok((part, whole, Probe::new(&c.raw)))
+            described.map_err(|e| e.to_string())
         })
-        .collect::<Result<Vec<_>>>()?;
+        .collect();
     progress.finish();
     let describe_seconds = clock.elapsed().as_secs_f64();
 
     let clock = Instant::now();
-    let io = |e| salient_core::Error::Io {
-        path: std::env::temp_dir(),
-        source: e,
-    };
-    let position: BTreeMap<&str, usize> = collection
-        .models
-        .iter()
-        .enumerate()
-        .map(|(i, m)| (m.id.as_str(), i))
-        .collect();
+    let verified_count = params.similarity.partial.verified;
     let mut parts = Vec::with_capacity(cuts.len());
-    for (c, (part, whole, probe)) in cuts.iter().zip(&described) {
+    progress.start("search", cuts.len());
+    for (c, described) in cuts.iter().zip(&described) {
         let model = &collection.models[c.source];
-        let verified_count = params.similarity.partial.verified;
-        // The stored patches of every model, nearest the part first (a library whose patches
-        // are all made); none for a part without area.
-        let by_patch: Vec<(f64, String)> = nearest_first(
-            probe
-                .as_ref()
-                .map(|p| {
-                    let part = Packed::piece(p.description());
-                    collection
-                        .models
-                        .iter()
-                        .zip(&targets)
-                        .map(|(m, (_, packed))| (packed.nearest(&part), m.id.clone()))
-                        .collect()
-                })
-                .unwrap_or_default(),
-        );
-        // What is served, and the same with the fit's own candidates (no model patched).
-        let served = index
-            .search(&Request::part(part, &by_patch, verified_count, DEPTH))
-            .map_err(io)?;
-        let fit = index
-            .search(&Request::part(part, &[], verified_count, DEPTH))
-            .map_err(io)?;
-        let whole = index
-            .search(&Request::model(whole, Method::default(), DEPTH))
-            .map_err(io)?;
-        // Each candidate of either ranking registered once.
-        let candidates: BTreeSet<usize> = [&served, &fit]
-            .into_iter()
-            .flat_map(|r| r.hits.iter().take(r.candidates))
-            .map(|h| position[h.id.as_str()])
-            .collect();
-        let residuals: BTreeMap<usize, f64> = candidates
-            .into_par_iter()
-            .map(|i| {
-                let residual = probe
-                    .as_ref()
-                    .map_or(f64::INFINITY, |p| p.residual(&targets[i].0));
-                (i, residual)
-            })
-            .collect();
-        let residual = |h: &Hit| residuals[&position[h.id.as_str()]];
-        let verify = |ranked: &Ranking| {
-            let mut verified = ranked.hits.clone();
-            by_residual(&mut verified[..ranked.candidates], |h| Some(residual(h)));
-            verified.truncate(DEPTH);
-            verified
-        };
-        // The fit alone: its own ranking, the candidates taken from the fit.
-        let fit_alone = &fit.hits[..DEPTH.min(fit.hits.len())];
-        let patches_alone: Vec<Hit> = by_patch
-            .iter()
-            .take(DEPTH)
-            .map(|(distance, id)| Hit {
-                id: id.clone(),
-                distance: *distance,
-                part_scale: None,
-            })
-            .collect();
-        let found = Found::of(fit_alone, &model.id);
-        parts.push(PartResult {
+        let mut result = PartResult {
             source: model.id.clone(),
             class: model.class.clone(),
+            protocol: c.protocol,
             ball: c.ball,
             area_share: c.area_share,
             size: c.size,
             vertices: c.raw.positions.len(),
-            features: part.sizes().collect(),
-            fitted_scale: found.rank.and_then(|r| fit.hits[r - 1].part_scale),
-            partial: found,
-            whole: Found::of(&whole.hits, &model.id),
-            patches: Found::of(&patches_alone, &model.id),
-            fit_verified: Found::of(&verify(&fit), &model.id),
-            verified: Found::of(&verify(&served), &model.id),
-            source_residual: residuals.get(&c.source).copied(),
-        });
+            features: Vec::new(),
+            featureless: false,
+            verified: Found::of([], &model.id),
+            search_ms: 0.0,
+            source_residual: None,
+            compared: None,
+            refused: None,
+        };
+        let (query, whole) = match described {
+            Ok(described) => described,
+            Err(error) => {
+                result.refused = Some(error.clone());
+                result.compared = (c.protocol == Protocol::Ball).then(|| Compared {
+                    partial: Found::of([], &model.id),
+                    patches: Found::of([], &model.id),
+                    whole: Found::of([], &model.id),
+                });
+                progress.advance(&model.id);
+                parts.push(result);
+                continue;
+            }
+        };
+        let started = Instant::now();
+        let served = partial::search(
+            query,
+            &index,
+            Scope::default(),
+            &library,
+            verified_count,
+            DEPTH,
+        )
+        .map_err(|e| match e {
+            SearchError::Index(e) => io(e),
+        })?;
+        result.search_ms = started.elapsed().as_secs_f64() * 1e3;
+        if let Some(whole) = whole {
+            let fit = index
+                .search(&Request::part(&query.part, &[], 0, DEPTH))
+                .map_err(io)?;
+            let whole = index
+                .search(&Request::model(whole, Method::default(), DEPTH))
+                .map_err(io)?;
+            let ids = |hits: &[Hit]| -> Vec<String> { hits.iter().map(|h| h.id.clone()).collect() };
+            result.compared = Some(Compared {
+                partial: Found::of(ids(&fit.hits).iter().map(String::as_str), &model.id),
+                patches: Found::of(
+                    library.by_patch(query).into_iter().map(|(_, id)| id),
+                    &model.id,
+                ),
+                whole: Found::of(ids(&whole.hits).iter().map(String::as_str), &model.id),
+            });
+        }
+        result.features = query.part.sizes().collect();
+        result.featureless = query.probe.as_ref().is_none_or(|p| p.is_plain());
+        result.verified = Found::of(served.hits.iter().map(|h| h.id.as_str()), &model.id);
+        result.source_residual = served
+            .hits
+            .iter()
+            .find(|h| h.id == model.id)
+            .and_then(|h| h.residual());
+        progress.advance(&model.id);
+        parts.push(result);
     }
+    progress.finish();
     let search_seconds = clock.elapsed().as_secs_f64();
 
     let class_of: BTreeMap<&str, &str> = collection
@@ -309,10 +419,10 @@ pub fn run(
         .iter()
         .map(|m| (m.id.as_str(), m.class.as_str()))
         .collect();
-    let rates = |mode: &str, of: &[&PartResult], found: fn(&PartResult) -> &Found| {
+    let rates = |mode: &str, of: &[&PartResult], found: &dyn Fn(&PartResult) -> &Found| {
         let share = |hits: usize| hits as f64 / of.len().max(1) as f64;
         let ranks = || of.iter().map(|p| found(p).rank);
-        ModeResult {
+        Rates {
             mode: mode.to_string(),
             parts: of.len(),
             source_first: share(ranks().filter(|&r| r == Some(1)).count()),
@@ -324,75 +434,153 @@ pub fn run(
             ),
         }
     };
-    let all: Vec<&PartResult> = parts.iter().collect();
+    let protocols = Protocol::all()
+        .map(|protocol| {
+            let of: Vec<&PartResult> = parts.iter().filter(|p| p.protocol == protocol).collect();
+            let featureless: Vec<&PartResult> =
+                of.iter().copied().filter(|p| p.featureless).collect();
+            ProtocolResult {
+                protocol,
+                all: rates("served", &of, &served),
+                featureless: rates("served, featureless", &featureless, &served),
+                median_share: median(of.iter().map(|p| p.area_share).collect()),
+                refused: of.iter().filter(|p| p.refused.is_some()).count(),
+            }
+        })
+        .collect();
+    let large: Vec<&PartResult> = parts
+        .iter()
+        .filter(|p| matches!(p.protocol, Protocol::Share(s) if s >= 0.15))
+        .collect();
+    let ball: Vec<&PartResult> = parts
+        .iter()
+        .filter(|p| p.protocol == Protocol::Ball)
+        .collect();
     let modes = vec![
-        rates("partial", &all, |p| &p.partial),
-        rates("whole", &all, |p| &p.whole),
-        rates("patches", &all, |p| &p.patches),
-        rates("fit, verified", &all, |p| &p.fit_verified),
-        rates("verified", &all, |p| &p.verified),
+        rates("partial", &ball, &|p| &compared(p).partial),
+        rates("whole", &ball, &|p| &compared(p).whole),
+        rates("patches", &ball, &|p| &compared(p).patches),
+        rates("verified", &ball, &served),
     ];
     let mut by_class = BTreeMap::<&str, Vec<&PartResult>>::new();
-    for p in &parts {
+    for &p in &large {
         by_class.entry(p.class.as_str()).or_default().push(p);
     }
     let per_class = by_class
         .into_iter()
-        .map(|(class, of)| (class.to_string(), rates("partial", &of, |p| &p.partial)))
+        .map(|(class, of)| (class.to_string(), rates("served", &of, &served)))
+        .collect();
+    let times: Vec<f64> = parts
+        .iter()
+        .filter(|p| p.refused.is_none())
+        .map(|p| p.search_ms / 1e3)
         .collect();
     Ok(PartialReport {
         collection: collection.root.display().to_string(),
         half: format!("{half:?}"),
         models: collection.models.len(),
         params: params.similarity.partial.clone(),
+        protocols,
+        from_15_percent: rates("served", &large, &served),
         modes,
         per_class,
-        parts,
         uncut,
         seconds: Seconds {
             signatures: signatures_seconds,
             describe_parts: describe_seconds,
             search: search_seconds,
+            search_p50: median(times.clone()),
+            search_p90: quantile(times, 0.9),
         },
+        parts,
     })
 }
 
-/// The parts of model `source`: [`PARTS`] balls of [`BALL`] × the model's radius around
-/// random points of its surface, [`ATTEMPTS`] tries each for a part within [`AREA_SHARE`].
-fn cut_parts(source: usize, raw: &RawMesh) -> Vec<Cut> {
-    let mut rng = ChaCha8Rng::seed_from_u64(0x9a27 ^ source as u64);
+/// What `mode=partial` serves for a part.
+fn served(p: &PartResult) -> &Found {
+    &p.verified
+}
+
+/// The other searches of a part of today's protocol.
+fn compared(p: &PartResult) -> &Compared {
+    p.compared.as_ref().expect("ball parts are compared")
+}
+
+fn median(values: Vec<f64>) -> f64 {
+    quantile(values, 0.5)
+}
+
+fn quantile(mut values: Vec<f64>, q: f64) -> f64 {
+    values.sort_by(f64::total_cmp);
+    let at = ((values.len() as f64 - 1.0) * q).round() as usize;
+    values.get(at).copied().unwrap_or(f64::NAN)
+}
+
+/// The parts of model `source` by `protocol`: [`BALL_PARTS`] balls of [`BALL`] × the
+/// model's radius, or one part of the share; [`ATTEMPTS`] random surface points each.
+fn cut_parts(source: usize, raw: &RawMesh, protocol: Protocol) -> Vec<Cut> {
+    let seed = match protocol {
+        // Today's seeds: the same parts as the reports before the shares.
+        Protocol::Ball => 0x9a27 ^ source as u64,
+        Protocol::Share(share) => 0x5a3e ^ source as u64 ^ ((share * 100.0) as u64) << 32,
+    };
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let (radius, area) = extent(raw);
     let triangles: Vec<[DVec3; 3]> = raw
         .triangles
         .iter()
         .map(|t| t.map(|v| raw.positions[v as usize]))
         .collect();
-    let mut parts = Vec::with_capacity(PARTS);
-    for _ in 0..ATTEMPTS * PARTS {
-        if parts.len() == PARTS {
+    let wanted = match protocol {
+        Protocol::Ball => BALL_PARTS,
+        Protocol::Share(_) => 1,
+    };
+    let mut parts = Vec::with_capacity(wanted);
+    for _ in 0..ATTEMPTS * wanted {
+        if parts.len() == wanted {
             break;
         }
         let Some(point) = sample_surface(&triangles, 1, &mut rng) else {
             break;
         };
         let point = point[0];
-        let ball = rng.gen_range(BALL);
-        let Some(part) = cut(raw, point, ball * radius) else {
-            continue;
-        };
-        let (part_radius, part_area) = extent(&part);
-        let area_share = part_area / area;
-        if AREA_SHARE.contains(&area_share) {
-            parts.push(Cut {
+        let cut_at = |ball: f64| {
+            let part = cut(raw, point, ball * radius)?;
+            let (part_radius, part_area) = extent(&part);
+            Some(Cut {
                 source,
+                protocol,
                 ball,
-                area_share,
+                area_share: part_area / area,
                 size: part_radius / radius,
                 raw: part,
-            });
-        }
+            })
+        };
+        let part = match protocol {
+            Protocol::Ball => {
+                cut_at(rng.gen_range(BALL)).filter(|c| AREA_SHARE.contains(&c.area_share))
+            }
+            Protocol::Share(share) => to_share(share, cut_at),
+        };
+        parts.extend(part);
     }
     parts
+}
+
+/// The cut whose share of the surface is within [`SHARE_TOLERANCE`] of `share`, by bisection
+/// on the ball's radius (its largest piece grows with it); `None` when the point's piece
+/// never reaches it (a model in many small pieces).
+fn to_share(share: f64, cut_at: impl Fn(f64) -> Option<Cut>) -> Option<Cut> {
+    let (mut low, mut high) = (0.0, 2.0);
+    for _ in 0..BISECTIONS {
+        let ball = (low + high) / 2.0;
+        match cut_at(ball) {
+            Some(c) if SHARE_TOLERANCE.contains(&(c.area_share / share)) => return Some(c),
+            Some(c) if c.area_share > share => high = ball,
+            _ => low = ball,
+        }
+    }
+    None
 }
 
 /// The radius SPEC §1.4 normalises by, and the area.
@@ -408,70 +596,91 @@ fn extent(raw: &RawMesh) -> (f64, f64) {
 
 impl PartialReport {
     pub fn markdown(&self) -> String {
-        let mut modes = Table::new([
-            "mode",
+        let header = [
             "parts",
+            "count",
             "source first",
             "source in top 5",
             "class first",
-        ]);
-        for m in &self.modes {
-            modes.row([
-                m.mode.clone(),
-                m.parts.to_string(),
-                score(m.source_first),
-                score(m.source_top5),
-                score(m.class_first),
-            ]);
-        }
-        let mut classes = Table::new([
-            "class",
-            "parts",
-            "source first",
-            "source in top 5",
-            "class first",
-        ]);
-        for (class, m) in &self.per_class {
-            classes.row([
-                class.clone(),
-                m.parts.to_string(),
-                score(m.source_first),
-                score(m.source_top5),
-                score(m.class_first),
-            ]);
-        }
-        let sizes: Vec<f64> = self.parts.iter().map(|p| p.size).collect();
-        let median = |mut v: Vec<f64>| {
-            v.sort_by(f64::total_cmp);
-            v.get(v.len() / 2).copied().unwrap_or(f64::NAN)
+        ];
+        let row = |table: &mut Table, name: String, r: &Rates| {
+            table.row([
+                name,
+                r.parts.to_string(),
+                score(r.source_first),
+                score(r.source_top5),
+                score(r.class_first),
+            ])
         };
+        let mut protocols = Table::new(header);
+        for p in &self.protocols {
+            let refused = match p.refused {
+                0 => String::new(),
+                n => format!(", {n} refused"),
+            };
+            let name = format!(
+                "{} (median {:.2}{refused})",
+                p.protocol.name(),
+                p.median_share
+            );
+            row(&mut protocols, name, &p.all);
+            if p.featureless.parts > 0 {
+                row(&mut protocols, "… featureless".to_string(), &p.featureless);
+            }
+        }
+        row(
+            &mut protocols,
+            "**≥ 15 % of the surface**".to_string(),
+            &self.from_15_percent,
+        );
+        let mut modes = Table::new(header);
+        for m in &self.modes {
+            row(&mut modes, m.mode.clone(), m);
+        }
+        let mut classes = Table::new(header);
+        for (class, m) in &self.per_class {
+            row(&mut classes, class.clone(), m);
+        }
+        let uncut: Vec<String> = self
+            .uncut
+            .iter()
+            .filter(|(_, models)| !models.is_empty())
+            .map(|(p, models)| format!("{}: {}", p.name(), models.len()))
+            .collect();
         format!(
             "# Partial retrieval: {} ({} half)\n\n\
-             Three parts per model of the half (each the surface inside a ball of 30–50 % of the model's \
-             radius around a random surface point, its largest piece), queried against all {} \
-             models as a part by salient features (`partial`: sizes {:?}), by the stored patch \
-             descriptors (`patches`: each model described by pieces cut around {} surface \
-             points at {:?} of its radius, the part as one piece), as a whole model (`whole`: \
-             the default method), and with the best {} registered into each model's surface and \
-             re-ranked by residual: the fit's best (`fit, verified`) or the patches' best \
-             (`verified`: what `mode=partial` serves). Median part size {:.2} of its model's \
-             radius, median share of its area {:.2}; {} models gave no part.\n\n{}\n\n## Partial mode per class\n\n{}\n\n\
-             Seconds: signatures {:.1}, describing the parts {:.1}, searching {:.1}.\n",
+             Parts of every model of the half, searched against all {} models as \
+             `mode=partial` serves them (sizes {:?}; the {} models nearest by stored patches, \
+             {} pieces of {:?} of the radius each, registered and ranked by residual). Today's \
+             protocol cuts three balls of 30–50 % of the model's radius a model; the others one \
+             part a model of the share of the surface named (within 0.8–1.25 of it). \
+             Featureless: within 2 % of the part's size of a plane or a sphere (RMS). A part the search refuses (too few vertices) counts as a miss. Models without a part: {}.\n\n{}\n\n\
+             ## Today's protocol by search\n\n\
+             `partial`: the salient-feature fit alone; `whole`: the part as a whole model (the \
+             default method); `patches`: the stored patches alone; `verified`: served.\n\n{}\n\n\
+             ## Parts of ≥ 15 % of the surface per class\n\n{}\n\n\
+             Seconds: signatures {:.1}, describing the parts {:.1}, searching {:.1}; one search \
+             p50 {:.2}, p90 {:.2} (wall, 2 threads).\n",
             self.collection,
             self.half,
             self.models,
             self.params.scales,
+            self.params.verified,
             Layout::STORED.centres,
             Layout::STORED.radii,
-            self.params.verified,
-            median(sizes),
-            median(self.parts.iter().map(|p| p.area_share).collect()),
-            self.uncut.len(),
+            if uncut.is_empty() {
+                "none".to_string()
+            } else {
+                uncut.join(", ")
+            },
+            protocols.markdown(),
             modes.markdown(),
             classes.markdown(),
             self.seconds.signatures,
             self.seconds.describe_parts,
             self.seconds.search,
+            self.seconds.search_p50,
+            self.seconds.search_p90,
         )
     }
 

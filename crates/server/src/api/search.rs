@@ -14,11 +14,11 @@ use super::upload::MeshUpload;
 use super::{App, AppState, Snapshot};
 use crate::model::ModelId;
 use crate::model::Upload;
-use crate::store::{Derived, Store, StoreResult};
+use crate::store::Derived;
 use salient_core::descriptor::patch::{Packed, PackedPiece};
 use salient_core::mesh::load_bytes;
 use salient_core::params::SimilarityParams;
-use salient_core::partial::{by_residual, nearest_first, Part, Probe, Target};
+use salient_core::partial::{self, PartQuery, SearchError, Target};
 use salient_core::pipeline::Extent;
 use salient_core::rank::{explain, Coverage, Hit, Method, Request, Scope, Search, PARTS};
 use salient_core::signature::Signature;
@@ -49,7 +49,8 @@ pub struct SearchQuery {
     /// the models with a part like it: first those it was registered into (the nearest by
     /// their stored patch descriptors, `similarity.partial.verified` of them), by how well
     /// it lies on their surface, then the others by how well all of its salient features
-    /// fit among theirs. `method`, `w` and `explain` do not apply.
+    /// fit among theirs. `method` and `w` do not apply; `explain` gives where the part lies in
+    /// each model it was registered into (`placement`).
     #[param(value_type = Option<String>, pattern = "^(whole|partial)$")]
     pub mode: Option<SearchMode>,
     /// With `mode=partial`: the part's size in its model, when known (its largest distance
@@ -100,6 +101,13 @@ pub struct SearchHit {
     /// there. Near 0 for the model the part was cut from; these models rank first, by it.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub residual: Option<f64>,
+    /// With `mode=partial&explain=true`, for the models the part was registered into: where
+    /// it lies in this model, the 4 × 4 matrix (column-major, as glTF's `matrix`) taking the
+    /// part's coordinates as uploaded to this model's as stored (a rotation, a uniform scale
+    /// and a shift).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[schema(min_items = 16, max_items = 16)]
+    pub placement: Option<[f64; 16]>,
     /// With `explain=true`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub explanation: Option<Explanation>,
@@ -249,6 +257,7 @@ fn search_hits(catalog: &Snapshot, hits: Vec<Hit>) -> Vec<SearchHit> {
                 explanation: None,
                 part_scale: hit.part_scale,
                 residual: None,
+                placement: None,
                 rank: i + 1,
                 name: record.and_then(|r| r.name.clone()),
                 tags: record.map(|r| r.tags.clone()).unwrap_or_default(),
@@ -261,103 +270,76 @@ fn search_hits(catalog: &Snapshot, hits: Vec<Hit>) -> Vec<SearchHit> {
 }
 
 /// Search with a part (`mode=partial`): the part described at each size on the extraction
-/// pool, then the models that best contain it ([`salient_core::rank::Query::Part`]).
+/// pool, then [`partial::search`] over the catalogue's snapshot and the stored patches.
 async fn search_part(
     app: &AppState,
     q: SearchQuery,
     upload: Upload,
     clock: Instant,
 ) -> Result<Json<SearchResponse>, AppError> {
-    if q.method.is_some() || q.w.is_some() || q.explain.is_some() {
+    if q.method.is_some() || q.w.is_some() {
         return Err(AppError::bad_request(
             "invalid_query",
-            "method, w and explain do not apply to mode=partial",
+            "method and w do not apply to mode=partial",
         ));
     }
+    let explain = q.explain.unwrap_or(false);
     let k = requested_k(app, &q)?;
     let scales = app.config.params.similarity.partial.sizes(q.part_scale);
     let params = app.config.params.clone();
     let limits = app.config.limits;
-    let (part, probe) = app
+    let query = app
         .pool
         .run(move || {
             let raw = load_bytes(&upload.mesh, upload.format, &upload.resources, &limits)?;
-            let part = Part::extract(&raw, &params, &scales, &params.similarity)?;
-            Ok::<_, salient_core::Error>((part, Probe::new(&raw)))
+            PartQuery::extract(&raw, &params, &scales)
         })
         .await??;
     let extract_ms = clock.elapsed().as_secs_f64() * 1e3;
     let search_clock = Instant::now();
-    // The stored patches nearest the part: they pick the models to verify.
-    let nearest = match &probe {
-        Some(probe) => {
-            let part = Packed::piece(probe.description());
-            app.with_store(move |store| nearest_patches(store, &part))
-                .await?
-        }
-        None => Vec::new(),
-    };
-    let part = Arc::new(part);
-    let ranked = part.clone();
+    let worker = app.0.clone();
     let tag = q.tag;
     let verified = app.config.params.similarity.partial.verified;
-    let (mut results, hashes, evaluated, pruned) = app
-        .read_catalog(move |catalog| {
-            let tagged = tagged(catalog, &tag);
+    let (query, mut results, ranking) = app
+        .pool
+        .run(move || {
+            let catalog = worker.catalog.snapshot();
+            let tagged = tagged(&catalog, &tag);
             let scope = Scope {
                 without: None,
                 keep: tag.is_some().then_some(&tagged as _),
             };
-            let ranking = catalog
-                .index
-                .search(&Request::part(&ranked, &nearest, verified, k).scope(scope))?;
-            let hashes: Vec<Option<String>> = ranking
-                .hits
-                .iter()
-                .take(ranking.candidates)
-                .map(|h| {
-                    catalog
-                        .records
-                        .get(h.id.as_str())
-                        .map(|r| r.content_hash.clone())
-                })
-                .collect();
-            let results = search_hits(catalog, ranking.hits);
-            Ok((results, hashes, ranking.evaluated, ranking.pruned))
+            let library = Stored {
+                app: &worker,
+                catalog: &catalog,
+            };
+            let ranking = partial::search(&query, &catalog.index, scope, &library, verified, k)
+                .map_err(|e| match e {
+                    SearchError::Index(e) => AppError::index(e),
+                    SearchError::Library(e) => e,
+                })?;
+            let hits = ranking.hits.iter().map(|h| Hit {
+                id: h.id.clone(),
+                distance: h.distance,
+                part_scale: h.part_scale,
+            });
+            let mut results = search_hits(&catalog, hits.collect());
+            for (result, hit) in results.iter_mut().zip(&ranking.hits) {
+                result.residual = hit.residual();
+                if explain {
+                    result.placement = hit.registration.map(|r| r.placement.to_cols_array());
+                }
+            }
+            Ok::<_, AppError>((query, results, ranking))
         })
-        .await?
-        .map_err(AppError::index)?;
-    if let Some(probe) = probe {
-        let worker = app.0.clone();
-        let candidates: Vec<(String, Option<String>)> =
-            results.iter().map(|r| r.id.clone()).zip(hashes).collect();
-        let residuals = app
-            .pool
-            .run(move || {
-                candidates
-                    .iter()
-                    .map(|(id, hash)| {
-                        let target = match hash {
-                            Some(hash) => worker.part_target(id, hash)?,
-                            None => None,
-                        };
-                        Ok(target.map(|t| probe.residual(&t)).filter(|r| r.is_finite()))
-                    })
-                    .collect::<Result<Vec<_>, AppError>>()
-            })
-            .await??;
-        for (hit, residual) in results.iter_mut().zip(&residuals) {
-            hit.residual = *residual;
-        }
-        by_residual(&mut results[..residuals.len()], |hit| hit.residual);
-    }
-    results.truncate(k);
+        .await??;
     for (i, hit) in results.iter_mut().enumerate() {
         hit.rank = i + 1;
     }
     let search_seconds = search_clock.elapsed().as_secs_f64();
     app.metrics.search_seconds.observe(search_seconds);
-    let part_sizes: Vec<PartSize> = part
+    let part_sizes: Vec<PartSize> = query
+        .part
         .sizes()
         .map(|(scale, features)| PartSize { scale, features })
         .collect();
@@ -366,8 +348,8 @@ async fn search_part(
         mode: SearchMode::Partial,
         k,
         results,
-        evaluated,
-        pruned,
+        evaluated: ranking.evaluated,
+        pruned: ranking.pruned,
         left_out: 0,
         partial: 0,
         query_features: part_sizes.iter().map(|s| s.features).max().unwrap_or(0),
@@ -381,40 +363,50 @@ async fn search_part(
     }))
 }
 
-/// Every model with stored patches ([`Derived::Patches`] of today's layout), nearest `part`
-/// first (ties by id). A model without (added since the patches were last made, or stored by
-/// an earlier release) is left to the fit ([`salient_core::rank::Query::Part`]).
-fn nearest_patches(store: &dyn Store, part: &PackedPiece) -> StoreResult<Vec<(f64, String)>> {
-    let mut nearest = Vec::new();
-    for entry in store.all_derived(Derived::Patches) {
-        let (id, bytes) = entry?;
-        if let Some(packed) = Packed::from_bytes(&bytes) {
-            nearest.push((packed.nearest(part), id.to_string()));
-        }
-    }
-    Ok(nearest_first(nearest))
+/// The stored models as partial search verifies against them: their patches in the store
+/// ([`Derived::Patches`] of today's layout), their uploads prepared as targets.
+struct Stored<'a> {
+    app: &'a App,
+    catalog: &'a Snapshot,
 }
 
-impl App {
-    /// Stored model `id` (content `hash`) as partial search registers parts into it, kept
-    /// while recently used; `None` if it was deleted meanwhile or cannot be prepared.
-    fn part_target(&self, id: &str, hash: &str) -> Result<Option<Arc<Target>>, AppError> {
-        let targets = &self.verifier.targets;
+impl partial::Library for Stored<'_> {
+    type Error = AppError;
+
+    fn nearest(&self, piece: &PackedPiece) -> Result<Vec<(f64, String)>, AppError> {
+        let mut nearest = Vec::new();
+        for entry in self.app.store.all_derived(Derived::Patches) {
+            let (id, bytes) = entry?;
+            if let Some(packed) = Packed::from_bytes(&bytes) {
+                nearest.push((packed.nearest(piece), id.to_string()));
+            }
+        }
+        Ok(nearest)
+    }
+
+    /// Kept while recently used, by content hash.
+    fn target(&self, id: &str) -> Result<Option<Arc<Target>>, AppError> {
+        let Some(record) = self.catalog.records.get(id) else {
+            return Ok(None);
+        };
+        let hash = &record.content_hash;
+        let targets = &self.app.verifier.targets;
         if let Some(target) = targets.lock().expect("never poisoned").get(hash) {
             return Ok(Some(target.clone()));
         }
-        let Some(upload) = self.store.upload(id)? else {
+        let Some(upload) = self.app.store.upload(id)? else {
             return Ok(None);
         };
         // A stored model that no longer loads or prepares (limits lowered since it was
         // added) is left unverified rather than failing the search.
+        let config = &self.app.config;
         let Ok(target) = load_bytes(
             &upload.mesh,
             upload.format,
             &upload.resources,
-            &self.config.limits,
+            &config.limits,
         )
-        .and_then(|raw| Target::new(&raw, &self.config.params.mesh)) else {
+        .and_then(|raw| Target::new(&raw, &config.params.mesh)) else {
             return Ok(None);
         };
         let target = Arc::new(target);

@@ -19,7 +19,7 @@
 //! The cut boundary needs no rule of its own: a wave that reaches a boundary is invalid
 //! (SPEC §2.3), so a vertex near the cut has a shrunk region or none, and no region spans it.
 
-use glam::DVec3;
+use glam::{DMat3, DMat4, DVec3};
 use glamx::{Mat3, Vec3};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -29,9 +29,12 @@ use crate::descriptor::patch::{piece, Frame, Layout, Packed, Patches, Piece};
 use crate::mesh::{prepare, RawMesh};
 use crate::params::{MeshParams, Params, PartialParams, SimilarityParams};
 use crate::pipeline::compute_features;
-use crate::register::{signed_permutations, Surface};
+use crate::register::{signed_permutations, Motion, Surface};
 use crate::similarity::{part_bound, part_in, CostMatrix, Features, Summary};
 use crate::{Error, Result};
+
+mod search;
+pub use search::{search, Library, PartHit, PartQuery, PartRanking, SearchError};
 
 /// A part described at each size it is searched at.
 #[derive(Debug, Clone)]
@@ -128,6 +131,9 @@ impl Part {
 pub struct Target {
     surface: Surface,
     patches: Patches,
+    /// SPEC §1.4's normalisation of the model: its surface is `(p - centre) * scale`.
+    centre: DVec3,
+    scale: f64,
 }
 
 impl Target {
@@ -142,6 +148,8 @@ impl Target {
         Ok(Self {
             surface: Surface::new(positions, mesh.triangles.clone())?,
             patches: Patches::compute(&mesh.positions, &mesh.triangles, 7, Layout::FRAMES),
+            centre: mesh.centre,
+            scale: mesh.scale,
         })
     }
 
@@ -188,6 +196,34 @@ const ROUNDS: usize = 30;
 /// as this far.
 const CAP: f32 = 0.5;
 
+/// RMS distance, in the part's units, within which a part is plain ([`Probe::is_plain`]): a
+/// relief of 2 % of its size is no feature.
+pub const PLAIN: f32 = 0.02;
+
+/// The RMS distance of `points` from their algebraic best-fit sphere (`|p|² = 2 c·p + d` by
+/// least squares), or `None` when no sphere is determined (points on a plane or a line).
+/// Hand-written: one 4 × 4 solve, not worth a linear-algebra crate.
+fn sphere_rms(points: &[Vec3]) -> Option<f32> {
+    let (mut normal, mut right) = (glam::DMat4::ZERO, glam::DVec4::ZERO);
+    let wide = |p: &Vec3| DVec3::new(p.x.into(), p.y.into(), p.z.into());
+    for p in points.iter().map(wide) {
+        let row = glam::DVec4::new(2.0 * p.x, 2.0 * p.y, 2.0 * p.z, 1.0);
+        normal += glam::DMat4::from_cols(row * row.x, row * row.y, row * row.z, row * row.w);
+        right += row * p.length_squared();
+    }
+    if normal.determinant().abs() < 1e-9 * (points.len() as f64).powi(4) {
+        return None;
+    }
+    let solution = normal.inverse() * right;
+    let centre = solution.truncate();
+    let radius = (solution.w + centre.length_squared()).max(0.0).sqrt();
+    let squares: f64 = points
+        .iter()
+        .map(|p| (wide(p).distance(centre) - radius).powi(2))
+        .sum();
+    Some((squares / points.len() as f64).sqrt() as f32)
+}
+
 /// A part as verification places it: its description and frame, and samples of its surface in
 /// that frame (centred, in its units, along its principal axes).
 pub struct Probe {
@@ -220,16 +256,41 @@ impl Probe {
         Some(Self { piece, samples })
     }
 
+    /// Whether the part is plain: its samples lie within [`PLAIN`] of their best plane or
+    /// their best sphere. Such a part lies on any surface like it (every flat face, every
+    /// ball), so finding it is weak evidence for a model: the evaluation counts these parts
+    /// as featureless and reports them apart.
+    pub fn is_plain(&self) -> bool {
+        let n = self.samples.len() as f32;
+        // The samples are along the part's principal axes, least spread last: the plane's
+        // normal.
+        let depth = self.samples.iter().map(|q| q.z).sum::<f32>() / n;
+        let plane = (self
+            .samples
+            .iter()
+            .map(|q| (q.z - depth).powi(2))
+            .sum::<f32>()
+            / n)
+            .sqrt();
+        plane <= PLAIN || sphere_rms(&self.samples).is_some_and(|rms| rms <= PLAIN)
+    }
+
     pub fn description(&self) -> &[f32] {
         &self.piece.description
     }
 
-    /// How well the part registers into `target`: placed by the frames of the target's patches
-    /// nearest its description (their size, centre and principal axes, each proper signed
-    /// order of the axes), the best starts refined by ICP, the mean distance of its samples
-    /// from the target's surface in units of the part's size there. Near 0 for the model the
-    /// part was cut from; lower is better.
+    /// How well the part registers into `target` ([`Probe::register`]); infinite when it
+    /// cannot be placed.
     pub fn residual(&self, target: &Target) -> f64 {
+        self.register(target).map_or(f64::INFINITY, |r| r.residual)
+    }
+
+    /// The part registered into `target`: placed by the frames of the target's patches
+    /// nearest its description (their size, centre and principal axes, each proper signed
+    /// order of the axes), the best starts refined by ICP. Its residual is the mean distance
+    /// of its samples from the target's surface in units of the part's size there: near 0 for
+    /// the model the part was cut from; lower is better.
+    pub fn register(&self, target: &Target) -> Option<Registration> {
         let coarse = &self.samples[..COARSE.min(self.samples.len())];
         let mut starts: Vec<(f32, Mat3, Vec3, f32)> = Vec::new();
         for (_, frame) in target.patches.closest(&self.piece.description, STARTS) {
@@ -260,17 +321,53 @@ impl Probe {
                     .iter()
                     .map(|&p| target.surface.distance(motion.apply(p)))
                     .sum();
-                f64::from(sum / placed.len() as f32 / (unit * motion.scale))
+                let residual = f64::from(sum / placed.len() as f32 / (unit * motion.scale));
+                (residual, linear, centre, motion)
             })
-            .fold(f64::INFINITY, f64::min)
+            .filter(|r| r.0.is_finite())
+            .min_by(|a, b| a.0.total_cmp(&b.0))
+            .map(|(residual, linear, centre, motion)| Registration {
+                residual,
+                placement: self.placement(target, linear, centre, &motion),
+            })
     }
+
+    /// The similarity taking the part's own coordinates to the target's: into the part's
+    /// frame, by the start (`linear`, `centre`) and ICP's `motion` onto the target's
+    /// normalised surface, then out of SPEC §1.4's normalisation.
+    fn placement(&self, target: &Target, linear: Mat3, centre: Vec3, motion: &Motion) -> DMat4 {
+        let wide3 = |m: Mat3| DMat3::from_cols_array(&m.to_cols_array().map(f64::from));
+        let wide = |v: Vec3| DVec3::new(v.x.into(), v.y.into(), v.z.into());
+        let Frame {
+            centre: c,
+            unit,
+            axes,
+        } = self.piece.frame;
+        let into_frame = DMat4::from_mat3(DMat3::from_cols(axes[0], axes[1], axes[2]).transpose())
+            * DMat4::from_scale(DVec3::splat(1.0 / unit))
+            * DMat4::from_translation(-c);
+        let start = DMat4::from_translation(wide(centre)) * DMat4::from_mat3(wide3(linear));
+        let fitted = DMat4::from_translation(wide(motion.shift))
+            * DMat4::from_mat3(wide3(motion.rotation) * f64::from(motion.scale));
+        let out = DMat4::from_translation(target.centre)
+            * DMat4::from_scale(DVec3::splat(1.0 / target.scale));
+        out * fitted * start * into_frame
+    }
+}
+
+/// Where a part lies in a model and how well it fits there ([`Probe::register`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Registration {
+    pub residual: f64,
+    /// Takes the part's coordinates to the model's (as uploaded): a rotation, a uniform
+    /// scale and a shift.
+    pub placement: DMat4,
 }
 
 /// Re-ranks the verified head of a part's fit ranking by residual ([`Probe::residual`]),
 /// lower first; entries without one (not registered: deleted meanwhile, or degenerate) go
-/// after them, and ties keep the fit's order. The one rule of `mode=partial`, the CLI's
-/// `--partial` and `salient eval partial`.
-pub fn by_residual<T>(verified: &mut [T], residual: impl Fn(&T) -> Option<f64>) {
+/// after them, and ties keep the fit's order.
+fn by_residual<T>(verified: &mut [T], residual: impl Fn(&T) -> Option<f64>) {
     let key = |t: &T| {
         residual(t)
             .filter(|r| r.is_finite())
