@@ -182,7 +182,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
 
     let clock = Instant::now();
     let unreadable = "cannot read the index's file in the temporary folder";
-    let (results, evaluated, pruned) = match &query {
+    let (mut results, evaluated, pruned): (Vec<Row>, _, _) = match &query {
         Query::Whole(signature) => {
             let ranking = index
                 .search(&Request::model(signature, method, args.k))
@@ -218,10 +218,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 part_scale: hit.part_scale,
                 residual: hit.registration.map(|r| r.residual),
             });
-            (rows.collect::<Vec<_>>(), ranking.evaluated, ranking.pruned)
+            (rows.collect(), ranking.evaluated, ranking.pruned)
         }
     };
-    let mut results: Vec<Row> = results;
     for (i, row) in results.iter_mut().enumerate() {
         row.rank = i + 1;
     }

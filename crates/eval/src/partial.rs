@@ -35,7 +35,7 @@ use salient_core::mesh::{load_path, RawMesh};
 use salient_core::params::{Limits, Params, PartialParams};
 use salient_core::partial::{self, stored_patches, Library, PartQuery, SearchError, Target};
 use salient_core::pipeline::compute;
-use salient_core::rank::{Hit, Index, Method, Request, Scope, Search};
+use salient_core::rank::{Index, Method, Request, Scope, Search};
 use salient_core::salient::area as triangle_area;
 use salient_core::Result;
 
@@ -390,14 +390,13 @@ pub fn run(
             let whole = index
                 .search(&Request::model(whole, Method::default(), DEPTH))
                 .map_err(io)?;
-            let ids = |hits: &[Hit]| -> Vec<String> { hits.iter().map(|h| h.id.clone()).collect() };
             result.compared = Some(Compared {
-                partial: Found::of(ids(&fit.hits).iter().map(String::as_str), &model.id),
+                partial: Found::of(fit.hits.iter().map(|h| h.id.as_str()), &model.id),
                 patches: Found::of(
                     library.by_patch(query).into_iter().map(|(_, id)| id),
                     &model.id,
                 ),
-                whole: Found::of(ids(&whole.hits).iter().map(String::as_str), &model.id),
+                whole: Found::of(whole.hits.iter().map(|h| h.id.as_str()), &model.id),
             });
         }
         result.features = query.part.sizes().collect();

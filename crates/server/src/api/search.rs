@@ -300,6 +300,8 @@ async fn search_part(
     let worker = app.0.clone();
     let tag = q.tag;
     let verified = app.config.params.similarity.partial.verified;
+    // On the extraction pool, not the rankers: its registrations are as heavy as an
+    // extraction, and are bounded by the same queue and time limit.
     let (query, mut results, ranking) = app
         .pool
         .run(move || {
