@@ -14,7 +14,8 @@ use salient_core::collection::{find_meshes, SignatureCache, Source};
 use salient_core::descriptor::patch::PackedPiece;
 use salient_core::mesh::load_path;
 use salient_core::params::MeshParams;
-use salient_core::partial::{self, PartQuery, SearchError, Target};
+use salient_core::part_search::{self, PartQuery, SearchError};
+use salient_core::partial::Target;
 use salient_core::rank::{Index, Method, Request, Scope, Search};
 use salient_core::signature::Signature;
 use salient_core::Limits;
@@ -206,7 +207,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             };
             let verified = params.similarity.partial.verified;
             let ranking =
-                partial::search(part, &index, Scope::default(), &folder, verified, args.k)
+                part_search::search(part, &index, Scope::default(), &folder, verified, args.k)
                     .map_err(|e| match e {
                         SearchError::Index(e) => anyhow::Error::new(e).context(unreadable),
                         SearchError::Library(e) => e,
@@ -277,7 +278,7 @@ struct Folder<'a> {
     params: &'a MeshParams,
 }
 
-impl partial::Library for Folder<'_> {
+impl part_search::Library for Folder<'_> {
     type Error = anyhow::Error;
 
     fn nearest(&self, piece: &PackedPiece) -> anyhow::Result<Vec<(f64, String)>> {

@@ -11,9 +11,8 @@ use salient_core::params::Params;
 use std::sync::Arc;
 
 use salient_core::descriptor::patch::PackedPiece;
-use salient_core::partial::{
-    self, stored_patches, Library, Part, PartQuery, Probe, SearchError, Target,
-};
+use salient_core::part_search::{self, Library, PartQuery, SearchError};
+use salient_core::partial::{stored_patches, Part, Probe, Target};
 use salient_core::pipeline::compute;
 use salient_core::rank::{Index, Request, Scope, Search};
 use salient_core::register::Surface;
@@ -439,7 +438,7 @@ fn a_partial_search_registers_the_patches_nearest_and_ranks_the_source_first() {
     let disguised = shapes::transformed(&spike(), disguise);
     for (part, moved) in [(spike(), glam::DMat4::IDENTITY), (disguised, disguise)] {
         let query = PartQuery::extract(&part, &params, scales).unwrap();
-        let ranking = partial::search(&query, &index, Scope::default(), &shelf, 4, 3).unwrap();
+        let ranking = part_search::search(&query, &index, Scope::default(), &shelf, 4, 3).unwrap();
         assert_eq!(ranking.verified, 4);
         assert_eq!(ranking.hits.len(), 3, "truncated to k after verification");
         assert_eq!(ranking.hits[0].id, "star", "{ranking:?}");
@@ -455,13 +454,13 @@ fn a_partial_search_registers_the_patches_nearest_and_ranks_the_source_first() {
 
     let query = PartQuery::extract(&spike(), &params, scales).unwrap();
     shelf.unprepared = &["star"];
-    let ranking = partial::search(&query, &index, Scope::default(), &shelf, 4, 4).unwrap();
+    let ranking = part_search::search(&query, &index, Scope::default(), &shelf, 4, 4).unwrap();
     assert_eq!(ranking.hits[3].id, "star", "{ranking:?}");
     assert_eq!(ranking.hits[3].registration, None);
     assert!(ranking.hits[..3].iter().all(|h| h.registration.is_some()));
 
     shelf.down = true;
-    let failed = partial::search(&query, &index, Scope::default(), &shelf, 4, 4);
+    let failed = part_search::search(&query, &index, Scope::default(), &shelf, 4, 4);
     assert!(matches!(
         failed,
         Err(SearchError::Library("the store is down"))

@@ -45,6 +45,7 @@ pub mod format;
 pub mod geodesic;
 pub mod mesh;
 pub mod params;
+pub mod part_search;
 pub mod partial;
 pub mod pipeline;
 pub mod preview;

@@ -404,7 +404,7 @@ pub enum Query<'a> {
     },
     /// A piece of a model ([`crate::partial`]): the models that contain it. `nearest` are the
     /// models nearest the part by their stored patches, nearest first, of which `verified`
-    /// become candidates to verify ([`crate::partial::search`]).
+    /// become candidates to verify ([`crate::part_search::search`]).
     Part {
         part: &'a Part,
         nearest: &'a [(f64, String)],

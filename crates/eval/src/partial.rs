@@ -2,7 +2,7 @@
 //! Parts are cut from every model of a half by two protocols: today's (three balls of 30–50 %
 //! of the model's radius around random surface points, [`Protocol::Ball`]) and one part per
 //! share of the surface ([`Protocol::Share`]: 5, 15, 30 and 50 %), each its largest connected
-//! piece ([`cut`]). Each is queried against the whole collection by [`partial::search`] (what
+//! piece ([`cut`]). Each is queried against the whole collection by [`part_search::search`] (what
 //! `mode=partial` serves), and, for today's protocol, also by its salient-feature fit alone,
 //! its stored patches alone and as a whole model. Reported per protocol: how often the source
 //! ranks first and within the top 5, and how often the first result is of the source's class;
@@ -33,7 +33,8 @@ use salient_core::mesh::cut::cut;
 use salient_core::mesh::prepare::normalisation;
 use salient_core::mesh::{load_path, RawMesh};
 use salient_core::params::{Limits, Params, PartialParams};
-use salient_core::partial::{self, stored_patches, Library, PartQuery, SearchError, Target};
+use salient_core::part_search::{self, Library, PartQuery, SearchError};
+use salient_core::partial::{stored_patches, Target};
 use salient_core::pipeline::compute;
 use salient_core::rank::{Index, Method, Request, Scope, Search};
 use salient_core::salient::area as triangle_area;
@@ -145,7 +146,7 @@ pub struct PartResult {
     pub features: Vec<(f64, usize)>,
     /// Plain: near a plane or a sphere.
     pub featureless: bool,
-    /// What `mode=partial` serves ([`partial::search`]), and its wall time.
+    /// What `mode=partial` serves ([`part_search::search`]), and its wall time.
     pub verified: Found,
     pub search_ms: f64,
     /// The part's registration residual in its source, when it was verified.
@@ -371,7 +372,7 @@ pub fn run(
             }
         };
         let started = Instant::now();
-        let served = partial::search(
+        let served = part_search::search(
             query,
             &index,
             Scope::default(),

@@ -18,7 +18,8 @@ use crate::store::Derived;
 use salient_core::descriptor::patch::{Packed, PackedPiece};
 use salient_core::mesh::load_bytes;
 use salient_core::params::SimilarityParams;
-use salient_core::partial::{self, PartQuery, SearchError, Target};
+use salient_core::part_search::{self, PartQuery, SearchError};
+use salient_core::partial::Target;
 use salient_core::pipeline::Extent;
 use salient_core::rank::{explain, Coverage, Hit, Method, Request, Scope, Search, PARTS};
 use salient_core::signature::Signature;
@@ -270,7 +271,7 @@ fn search_hits(catalog: &Snapshot, hits: Vec<Hit>) -> Vec<SearchHit> {
 }
 
 /// Search with a part (`mode=partial`): the part described at each size on the extraction
-/// pool, then [`partial::search`] over the catalogue's snapshot and the stored patches.
+/// pool, then [`part_search::search`] over the catalogue's snapshot and the stored patches.
 async fn search_part(
     app: &AppState,
     q: SearchQuery,
@@ -315,7 +316,7 @@ async fn search_part(
                 app: &worker,
                 catalog: &catalog,
             };
-            let ranking = partial::search(&query, &catalog.index, scope, &library, verified, k)
+            let ranking = part_search::search(&query, &catalog.index, scope, &library, verified, k)
                 .map_err(|e| match e {
                     SearchError::Index(e) => AppError::index(e),
                     SearchError::Library(e) => e,
@@ -372,7 +373,7 @@ struct Stored<'a> {
     catalog: &'a Snapshot,
 }
 
-impl partial::Library for Stored<'_> {
+impl part_search::Library for Stored<'_> {
     type Error = AppError;
 
     fn nearest(&self, piece: &PackedPiece) -> Result<Vec<(f64, String)>, AppError> {

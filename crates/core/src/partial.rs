@@ -14,7 +14,7 @@
 //! - **Verification.** A part's few salient features are generic (a tip fits among the tips
 //!   of many models), so the best fits are checked on the geometry: the part's surface is
 //!   registered into each one's ([`Probe::residual`]) and they rank by how far it stays from
-//!   it ([`by_residual`]).
+//!   it ([`crate::part_search`]).
 //!
 //! The cut boundary needs no rule of its own: a wave that reaches a boundary is invalid
 //! (SPEC §2.3), so a vertex near the cut has a shrunk region or none, and no region spans it.
@@ -32,9 +32,6 @@ use crate::pipeline::compute_features;
 use crate::register::{signed_permutations, Motion, Surface};
 use crate::similarity::{part_bound, part_in, CostMatrix, Features, Summary};
 use crate::{Error, Result};
-
-mod search;
-pub use search::{search, Library, PartHit, PartQuery, PartRanking, SearchError};
 
 /// A part described at each size it is searched at.
 #[derive(Debug, Clone)]
@@ -171,14 +168,6 @@ pub fn stored_patches<'a>(
         7,
         Layout::STORED,
     )))
-}
-
-/// Models by the distance of a part to their stored patches ([`Packed::nearest`]), nearest
-/// first, ties by id: the order a partial search takes its candidates in
-/// ([`crate::rank::Query::Part`]).
-pub fn nearest_first<S: Ord>(mut models: Vec<(f64, S)>) -> Vec<(f64, S)> {
-    models.sort_by(|a, b| a.0.total_cmp(&b.0).then_with(|| a.1.cmp(&b.1)));
-    models
 }
 
 /// Patches of a target whose frames start a placement. These settings were chosen on CAPOD's
@@ -362,16 +351,4 @@ pub struct Registration {
     /// Takes the part's coordinates to the model's (as uploaded): a rotation, a uniform
     /// scale and a shift.
     pub placement: DMat4,
-}
-
-/// Re-ranks the verified head of a part's fit ranking by residual ([`Probe::residual`]),
-/// lower first; entries without one (not registered: deleted meanwhile, or degenerate) go
-/// after them, and ties keep the fit's order.
-fn by_residual<T>(verified: &mut [T], residual: impl Fn(&T) -> Option<f64>) {
-    let key = |t: &T| {
-        residual(t)
-            .filter(|r| r.is_finite())
-            .unwrap_or(f64::INFINITY)
-    };
-    verified.sort_by(|a, b| key(a).total_cmp(&key(b)));
 }

@@ -6,10 +6,10 @@ use std::sync::Arc;
 
 use rayon::prelude::*;
 
-use super::{nearest_first, Part, Probe, Registration, Target};
 use crate::descriptor::patch::{Packed, PackedPiece};
 use crate::mesh::RawMesh;
 use crate::params::Params;
+use crate::partial::{Part, Probe, Registration, Target};
 use crate::rank::{Request, Scope, Search};
 
 /// What a partial search verifies against.
@@ -83,7 +83,7 @@ pub enum SearchError<E> {
 
 /// The `k` models that best contain `query`, in `scope`: the `verified` models nearest it by
 /// their stored patches (that the part fits at all) registered and ranked by residual
-/// ([`super::by_residual`]), then the rest by the fit ([`crate::rank::Query::Part`]).
+/// ([`by_residual`]), then the rest by the fit ([`crate::rank::Query::Part`]).
 /// Registrations run in parallel on the current rayon pool; the result does not depend on it.
 pub fn search<L: Library>(
     query: &PartQuery,
@@ -127,7 +127,7 @@ pub fn search<L: Library>(
             registration,
         })
         .collect();
-    super::by_residual(&mut hits[..candidates], PartHit::residual);
+    by_residual(&mut hits[..candidates], PartHit::residual);
     hits.truncate(k);
     Ok(PartRanking {
         hits,
@@ -135,4 +135,24 @@ pub fn search<L: Library>(
         pruned: ranking.pruned,
         verified: candidates,
     })
+}
+
+/// Models by the distance of a part to their stored patches ([`Packed::nearest`]), nearest
+/// first, ties by id: the order a partial search takes its candidates in
+/// ([`crate::rank::Query::Part`]).
+fn nearest_first<S: Ord>(mut models: Vec<(f64, S)>) -> Vec<(f64, S)> {
+    models.sort_by(|a, b| a.0.total_cmp(&b.0).then_with(|| a.1.cmp(&b.1)));
+    models
+}
+
+/// Re-ranks the verified head of a part's fit ranking by residual ([`Probe::residual`]),
+/// lower first; entries without one (not registered: deleted meanwhile, or degenerate) go
+/// after them, and ties keep the fit's order.
+fn by_residual<T>(verified: &mut [T], residual: impl Fn(&T) -> Option<f64>) {
+    let key = |t: &T| {
+        residual(t)
+            .filter(|r| r.is_finite())
+            .unwrap_or(f64::INFINITY)
+    };
+    verified.sort_by(|a, b| key(a).total_cmp(&key(b)));
 }
