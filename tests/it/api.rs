@@ -14,6 +14,8 @@ use serde_json::Value;
 use crate::app::{Form, TestApp, TestResponse};
 use crate::server::{fixture, obj};
 use crate::shapes;
+use crate::stores::{stores, Stores};
+use rstest_reuse::apply;
 
 async fn json(response: TestResponse) -> Value {
     response.json()
@@ -23,9 +25,10 @@ async fn expect_error(response: TestResponse, status: StatusCode, code: &str) {
     crate::app::expect_error(&response, status, code);
 }
 
+#[apply(stores)]
 #[tokio::test]
-async fn models_can_be_added_listed_read_replaced_and_deleted() {
-    let app = TestApp::new();
+async fn models_can_be_added_listed_read_replaced_and_deleted(#[case] store: Stores) {
+    let app = TestApp::on(store);
 
     let horse = fixture("capod_horse_m155.obj");
     let created = app
@@ -930,9 +933,10 @@ async fn a_spool_that_cannot_be_written_is_a_500_that_names_no_path() {
     assert_eq!(app.get("/healthz").send().await.status, StatusCode::OK);
 }
 
+#[apply(stores)]
 #[tokio::test]
-async fn original_files_come_back_byte_for_byte() {
-    let app = TestApp::new();
+async fn original_files_come_back_byte_for_byte(#[case] store: Stores) {
+    let app = TestApp::on(store);
     let horse = fixture("capod_horse_m155.obj");
     assert_eq!(
         app.add("id=horse", "model/obj", horse.clone()).await.status,
@@ -1021,9 +1025,10 @@ async fn a_bad_search_query_is_refused_before_any_extraction() {
     assert_eq!(extractions(&app).await, 1);
 }
 
+#[apply(stores)]
 #[tokio::test]
-async fn a_patch_edits_fields_without_re_extracting() {
-    let app = TestApp::new();
+async fn a_patch_edits_fields_without_re_extracting(#[case] store: Stores) {
+    let app = TestApp::on(store);
     let added = app
         .add(
             "id=horse&name=Horse&tags=animal",

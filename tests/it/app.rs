@@ -33,6 +33,11 @@ impl TestApp {
         Self::build(config, Arc::new(InMemoryStore::new()), None)
     }
 
+    /// The default configuration over an empty store of kind `store` ([`crate::stores`]).
+    pub fn on(store: crate::stores::Stores) -> Self {
+        Self::build(Config::default(), store.open(), None)
+    }
+
     /// Any configuration, store and ranking hook.
     pub fn build(config: Config, store: Arc<dyn Store>, ranking_hook: Option<Hook>) -> Self {
         let mut app = App::new(config, store).expect("the service starts");

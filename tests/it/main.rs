@@ -5,8 +5,11 @@
 //!
 //! Support modules: [`app`] (in-process service), [`server`] (the real binary), [`shapes`]
 //! (generated meshes with known answers), [`common`] (glTF writing, mesh helpers),
-//! [`synthetic`] (signature collections for ranking and measures).
+//! [`synthetic`] (signature collections for ranking and measures), [`stores`] (the stores an
+//! API test runs over).
 
+#[macro_use]
+mod stores;
 mod app;
 mod common;
 mod server;

@@ -4,20 +4,25 @@
 use crate::server;
 use crate::shapes;
 
+use rstest_reuse::apply;
 use salient_core::mesh::Format;
 use salient_server::model::{sha256_hex, Fields, ModelId, ModelRecord, Upload};
 use salient_server::store::{SledStore, Store, StoreError};
 
+use crate::stores::{stores, Stores};
+
 /// A record of `upload` under `id` (the store does not read the signature's content).
 fn record(id: &str, upload: &Upload) -> ModelRecord {
-    let signature =
+    static SIGNATURE: std::sync::OnceLock<salient_core::Signature> = std::sync::OnceLock::new();
+    let signature = SIGNATURE.get_or_init(|| {
         salient_core::pipeline::compute(&shapes::icosphere(1), &salient_core::Params::default())
-            .unwrap();
+            .unwrap()
+    });
     ModelRecord::new(
         ModelId::parse(id).unwrap(),
         Fields::default(),
         upload,
-        &signature,
+        signature,
     )
 }
 
@@ -275,4 +280,99 @@ fn a_start_loads_every_model_across_batches_and_names_an_unreadable_one() {
         .err()
         .expect("an unreadable signature stops the start");
     assert!(error.to_string().contains("m01234x"), "{error}");
+}
+
+/// What the service relies on of any store, over each: a model's record, signature and files
+/// written together, replaced and deleted whole; files shared and released with their last
+/// model; derived data bound to the content; listing in id order; a start loads every model.
+#[apply(stores)]
+fn every_store_keeps_models_files_and_derived_data_as_the_service_expects(#[case] store: Stores) {
+    use salient_server::store::Derived;
+
+    let store = store.open();
+    let (a, b) = (upload(b"v 0 0 0\n"), upload(b"v 1 1 1\n"));
+    let mut big = b"# a large comment\n".repeat(80_000);
+    big.extend_from_slice(b"v 0 0 0\n");
+    let large = upload(&big);
+    assert!(store
+        .put(&record("one", &a), b"sig1", &a)
+        .unwrap()
+        .is_none());
+    store.put(&record("two", &a), b"sig2", &a).unwrap();
+    store.put(&record("big", &large), b"sig4", &large).unwrap();
+    assert_eq!(store.len(), 3);
+    assert_eq!(
+        store
+            .find_content(a.content_hash())
+            .unwrap()
+            .as_ref()
+            .map(ModelId::as_str),
+        Some("two")
+    );
+    assert_eq!(store.upload("big").unwrap().unwrap().mesh, big);
+    assert_eq!(store.blob(&sha256_hex(&big)).unwrap().unwrap(), big);
+
+    assert!(store
+        .put_derived(Derived::Preview, "two", a.content_hash(), b"p")
+        .unwrap());
+    assert!(!store
+        .put_derived(Derived::Preview, "two", b.content_hash(), b"p")
+        .unwrap());
+    assert!(!store
+        .put_derived(Derived::Preview, "gone", a.content_hash(), b"p")
+        .unwrap());
+    assert_eq!(
+        store.derived(Derived::Preview, "two").unwrap().as_deref(),
+        Some(&b"p"[..])
+    );
+
+    // Replacing "two" with other content keeps "one"'s file and drops "two"'s derived data.
+    let replaced = store.put(&record("two", &b), b"sig3", &b).unwrap();
+    assert_eq!(replaced.unwrap().content_hash, a.content_hash());
+    assert_eq!(store.derived(Derived::Preview, "two").unwrap(), None);
+    assert_eq!(store.upload("one").unwrap().unwrap().mesh, a.mesh);
+    assert_eq!(
+        store.signature("two").unwrap().as_deref(),
+        Some(&b"sig3"[..])
+    );
+
+    // An update holds only while the model has the content it was made from.
+    let mut edited = record("two", &b);
+    edited.name = Some("edited".into());
+    assert!(store.update_model(&edited, b"sig5").unwrap());
+    assert!(!store.update_model(&record("two", &a), b"sig6").unwrap());
+    assert_eq!(
+        store.get("two").unwrap().unwrap().name.as_deref(),
+        Some("edited")
+    );
+
+    assert!(store.delete("one").unwrap().is_some());
+    assert!(store.delete("one").unwrap().is_none());
+    assert!(store.blob(&sha256_hex(&a.mesh)).unwrap().is_none());
+    assert!(store.delete("big").unwrap().is_some());
+    assert!(store.blob(&sha256_hex(&big)).unwrap().is_none());
+    assert_eq!(store.find_content(a.content_hash()).unwrap(), None);
+
+    for i in 0..600 {
+        let u = upload(format!("# {i}\n").as_bytes());
+        store
+            .put(&record(&format!("m{i:04}"), &u), b"s", &u)
+            .unwrap();
+    }
+    let listed: Vec<String> = store
+        .list(Some("m0299"), 2)
+        .unwrap()
+        .into_iter()
+        .map(|r| r.id.as_str().to_string())
+        .collect();
+    assert_eq!(listed, ["m0300", "m0301"]);
+    let loaded: Vec<String> = store
+        .load_all()
+        .map(|l| l.unwrap().record.id.as_str().to_string())
+        .collect();
+    assert_eq!(loaded.len(), 601);
+    assert!(loaded.windows(2).all(|w| w[0] < w[1]), "id order");
+    store.set_state("progress", b"7").unwrap();
+    store.set_state("progress", b"8").unwrap();
+    assert_eq!(store.state("progress").unwrap().as_deref(), Some(&b"8"[..]));
 }

@@ -1,16 +1,19 @@
 //! Persistent storage of models: records, signatures and the original files (SPEC §8).
 //!
 //! Behind a small trait so that the backend can change; [`SledStore`] is the default, as the
-//! product requires, and [`InMemoryStore`] serves tests and trials. Writes for one model are atomic and durable when they return: a model is
+//! product requires, [`PostgresStore`] is shared by replicas, and [`InMemoryStore`] serves
+//! tests and trials. Writes for one model are atomic and durable when they return: a model is
 //! either fully present (record, signature, files) or absent.
 
 mod memory;
+mod postgres;
 mod sled_store;
 
 use bytes::Bytes;
 
 use crate::model::{ModelId, ModelRecord, Upload};
 pub use memory::InMemoryStore;
+pub use postgres::PostgresStore;
 use salient_core::signature::Signature;
 pub use sled_store::SledStore;
 
@@ -18,7 +21,13 @@ pub use sled_store::SledStore;
 #[derive(Debug, thiserror::Error)]
 pub enum StoreError {
     #[error("storage backend: {0}")]
-    Backend(#[from] sled::Error),
+    Backend(Box<dyn std::error::Error + Send + Sync>),
+    /// The backend cannot be reached now (a database that is down or restarting): retry.
+    #[error("storage unavailable: {0}")]
+    Unavailable(Box<dyn std::error::Error + Send + Sync>),
+    /// The store's settings (a connection string) cannot be used.
+    #[error("storage configuration: {0}")]
+    Config(String),
     /// A blob file could not be written or read.
     #[error("storage file: {0}")]
     File(#[from] std::io::Error),
@@ -31,6 +40,12 @@ pub enum StoreError {
 }
 
 pub type StoreResult<T> = Result<T, StoreError>;
+
+impl From<sled::Error> for StoreError {
+    fn from(e: sled::Error) -> Self {
+        StoreError::Backend(Box::new(e))
+    }
+}
 
 /// The upload `record` names, its files read by `blob` (SHA-256 → bytes); a file the record
 /// names but the store lacks means a damaged store.

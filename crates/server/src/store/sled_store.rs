@@ -66,7 +66,7 @@ fn decode_record(key: &[u8], bytes: &[u8]) -> StoreResult<ModelRecord> {
 fn transaction_error(e: sled::transaction::TransactionError<StoreError>) -> StoreError {
     match e {
         sled::transaction::TransactionError::Abort(e) => e,
-        sled::transaction::TransactionError::Storage(e) => StoreError::Backend(e),
+        sled::transaction::TransactionError::Storage(e) => StoreError::from(e),
     }
 }
 

@@ -1,0 +1,755 @@
+//! The PostgreSQL backend: one catalogue shared by any number of `salient serve` processes
+//! (issue #37).
+//!
+//! [`Store`](super::Store) is synchronous and the service calls it from blocking threads.
+//! This backend keeps it so with an async client (tokio-postgres, pooled by deadpool) on a
+//! runtime of its own: each call spawns its work there and waits on a std channel. Nothing
+//! blocks on a runtime of the service's (no `block_on` on one of its workers), and a call
+//! made from any thread works. Every write is one transaction, acknowledged after it commits.
+//!
+//! The schema is `migrations/postgres/` (refinery), applied at open under an advisory lock so
+//! that replicas starting together migrate once; a database migrated by a newer salient is
+//! refused, as sled's store is.
+
+use std::collections::BTreeMap;
+use std::future::Future;
+use std::pin::Pin;
+use std::str::FromStr;
+use std::sync::Arc;
+use std::time::Duration;
+
+use bytes::{Bytes, BytesMut};
+use deadpool_postgres::{Manager, ManagerConfig, Pool, RecyclingMethod, Runtime, Timeouts};
+use tokio_postgres::config::{Host, SslMode};
+use tokio_postgres::error::SqlState;
+use tokio_postgres::{NoTls, Transaction};
+
+use super::{Derived, Loaded, StoreError, StoreResult};
+use crate::model::{sha256_hex, ModelId, ModelRecord, Upload};
+
+mod embedded {
+    refinery::embed_migrations!("../../migrations/postgres");
+}
+
+/// Connections the pool holds at most: the service's blocking threads share them.
+const CONNECTIONS: usize = 16;
+/// How long a call waits for a connection (or to make one) before the store is reported
+/// unavailable: a database that is down answers 503 in seconds, not after a TCP timeout.
+const WAIT: Duration = Duration::from_secs(5);
+/// A file's bytes are stored in chunks of this size (`blob_chunks`).
+const CHUNK_BYTES: usize = 1 << 20;
+/// Models read per query while the index loads (`load_all`): ~2 MB of signatures.
+const PAGE: i64 = 256;
+/// Key of the advisory lock held while migrating.
+const MIGRATION_LOCK: i64 = 0x5a11_e470;
+/// A transaction that deadlocked or lost a serialisation race is run again up to this often.
+const ATTEMPTS: usize = 4;
+
+/// A PostgreSQL database holding a salient catalogue.
+pub struct PostgresStore {
+    pool: Pool,
+    /// The runtime the client runs on; shut down without waiting when the store is dropped
+    /// (dropping a runtime from inside another one would panic).
+    runtime: Option<tokio::runtime::Runtime>,
+}
+
+impl std::fmt::Debug for PostgresStore {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("PostgresStore").finish_non_exhaustive()
+    }
+}
+
+impl Drop for PostgresStore {
+    fn drop(&mut self) {
+        if let Some(runtime) = self.runtime.take() {
+            runtime.shutdown_background();
+        }
+    }
+}
+
+/// The schema version this code writes (the newest migration).
+fn schema_version() -> u32 {
+    embedded::migrations::runner()
+        .get_migrations()
+        .iter()
+        .map(|m| m.version())
+        .max()
+        .unwrap_or(0)
+}
+
+/// A backend error, or [`StoreError::Unavailable`] when the database cannot be reached.
+fn backend(e: tokio_postgres::Error) -> StoreError {
+    if e.is_closed() || e.as_db_error().is_none() && e.code().is_none() {
+        StoreError::Unavailable(Box::new(e))
+    } else {
+        StoreError::Backend(Box::new(e))
+    }
+}
+
+fn pool_error(e: deadpool_postgres::PoolError) -> StoreError {
+    match e {
+        deadpool_postgres::PoolError::Backend(e) => backend(e),
+        other => StoreError::Unavailable(Box::new(other)),
+    }
+}
+
+fn decode_record(id: &str, json: &str) -> StoreResult<ModelRecord> {
+    serde_json::from_str(json).map_err(|e| StoreError::Corrupt {
+        key: id.to_string(),
+        message: e.to_string(),
+    })
+}
+
+fn parse_id(id: &str) -> StoreResult<ModelId> {
+    ModelId::parse(id).map_err(|_| StoreError::Corrupt {
+        key: id.to_string(),
+        message: "not a model id".to_string(),
+    })
+}
+
+fn cache_name(cache: Derived) -> &'static str {
+    match cache {
+        Derived::Preview => "preview",
+        Derived::Patches => "patches",
+    }
+}
+
+/// A transaction's error that is worth running it again for.
+fn is_retryable(e: &StoreError) -> bool {
+    let StoreError::Backend(e) = e else {
+        return false;
+    };
+    e.downcast_ref::<tokio_postgres::Error>()
+        .and_then(tokio_postgres::Error::code)
+        .is_some_and(|code| {
+            *code == SqlState::T_R_DEADLOCK_DETECTED || *code == SqlState::T_R_SERIALIZATION_FAILURE
+        })
+}
+
+impl PostgresStore {
+    /// Connects to the database `url` names (a `postgres://` URL or `key=value` pairs;
+    /// `sslmode` honoured) and brings its schema up to date.
+    pub fn open(url: &str) -> StoreResult<Self> {
+        let config = tokio_postgres::Config::from_str(url).map_err(|_| {
+            // The parser's message may quote the string, password included.
+            StoreError::Config("the PostgreSQL connection string does not parse".to_string())
+        })?;
+        let runtime = tokio::runtime::Builder::new_multi_thread()
+            .worker_threads(2)
+            .thread_name("salient-postgres")
+            .enable_all()
+            .build()?;
+        let manager_config = ManagerConfig {
+            recycling_method: RecyclingMethod::Fast,
+        };
+        // A server reached over a Unix socket talks no TLS (as with libpq); any other gets
+        // rustls with the web's roots, which also verifies the certificate under `require`.
+        let local = config
+            .get_hosts()
+            .iter()
+            .all(|host| !matches!(host, Host::Tcp(_)));
+        let manager = if local || config.get_ssl_mode() == SslMode::Disable {
+            Manager::from_config(config, NoTls, manager_config)
+        } else {
+            let roots =
+                rustls::RootCertStore::from_iter(webpki_roots::TLS_SERVER_ROOTS.iter().cloned());
+            let tls = rustls::ClientConfig::builder_with_provider(Arc::new(
+                rustls::crypto::ring::default_provider(),
+            ))
+            .with_safe_default_protocol_versions()
+            .map_err(|e| StoreError::Config(e.to_string()))?
+            .with_root_certificates(roots)
+            .with_no_client_auth();
+            Manager::from_config(
+                config,
+                tokio_postgres_rustls::MakeRustlsConnect::new(tls),
+                manager_config,
+            )
+        };
+        let pool = {
+            let _entered = runtime.enter();
+            Pool::builder(manager)
+                .max_size(CONNECTIONS)
+                .timeouts(Timeouts {
+                    wait: Some(WAIT),
+                    create: Some(WAIT),
+                    recycle: Some(WAIT),
+                })
+                .runtime(Runtime::Tokio1)
+                .build()
+                .map_err(|e| StoreError::Config(e.to_string()))?
+        };
+        let store = Self {
+            pool,
+            runtime: Some(runtime),
+        };
+        store.run(|pool| async move { migrate(&pool).await })?;
+        Ok(store)
+    }
+
+    /// Runs `work` on the store's runtime and waits for it on this thread.
+    fn run<T, F>(&self, work: impl FnOnce(Pool) -> F) -> StoreResult<T>
+    where
+        T: Send + 'static,
+        F: Future<Output = StoreResult<T>> + Send + 'static,
+    {
+        let (sender, receiver) = std::sync::mpsc::sync_channel(1);
+        let work = work(self.pool.clone());
+        self.runtime
+            .as_ref()
+            .expect("present until dropped")
+            .spawn(async move {
+                let _ = sender.send(work.await);
+            });
+        receiver.recv().map_err(|_| {
+            StoreError::Unavailable("the store's runtime stopped before answering".into())
+        })?
+    }
+
+    /// Runs `work` in one transaction, committed before this returns; again (from the start)
+    /// when it deadlocked with another writer.
+    fn transaction<T, W>(&self, work: W) -> StoreResult<T>
+    where
+        T: Send + 'static,
+        W: for<'a> Fn(&'a Transaction<'a>) -> TxFuture<'a, T> + Send + Sync + 'static,
+    {
+        self.run(|pool| async move {
+            let mut attempt = 0;
+            loop {
+                attempt += 1;
+                let result = async {
+                    let mut client = pool.get().await.map_err(pool_error)?;
+                    let tx = client.transaction().await.map_err(backend)?;
+                    let value = work(&tx).await?;
+                    tx.commit().await.map_err(backend)?;
+                    Ok(value)
+                }
+                .await;
+                match result {
+                    Err(e) if attempt < ATTEMPTS && is_retryable(&e) => continue,
+                    result => return result,
+                }
+            }
+        })
+    }
+
+    /// One statement's rows, outside a transaction.
+    fn query(
+        &self,
+        sql: &'static str,
+        params: Vec<Param>,
+    ) -> StoreResult<Vec<tokio_postgres::Row>> {
+        self.run(|pool| async move {
+            let client = pool.get().await.map_err(pool_error)?;
+            let refs: Vec<&(dyn tokio_postgres::types::ToSql + Sync)> =
+                params.iter().map(Param::as_sql).collect();
+            client.query(sql, &refs).await.map_err(backend)
+        })
+    }
+}
+
+/// A statement's parameter, owned so that it can travel to the store's runtime.
+enum Param {
+    Text(String),
+    Bytes(Vec<u8>),
+    Int(i64),
+}
+
+impl Param {
+    fn as_sql(&self) -> &(dyn tokio_postgres::types::ToSql + Sync) {
+        match self {
+            Param::Text(s) => s,
+            Param::Bytes(b) => b,
+            Param::Int(i) => i,
+        }
+    }
+}
+
+/// The work of one transaction ([`PostgresStore::transaction`]), borrowing it.
+type TxFuture<'a, T> = Pin<Box<dyn Future<Output = StoreResult<T>> + Send + 'a>>;
+
+/// Applies the migrations this binary has and the database lacks, under an advisory lock;
+/// refuses a database a newer salient migrated.
+async fn migrate(pool: &Pool) -> StoreResult<()> {
+    let mut client = pool.get().await.map_err(pool_error)?;
+    client
+        .execute("SELECT pg_advisory_lock($1)", &[&MIGRATION_LOCK])
+        .await
+        .map_err(backend)?;
+    let result = async {
+        let runner = embedded::migrations::runner();
+        // refinery's own table; a new database has none.
+        let history: Option<String> = client
+            .query_one("SELECT to_regclass('refinery_schema_history')::text", &[])
+            .await
+            .map_err(backend)?
+            .get(0);
+        let found: Option<i32> = match history {
+            None => None,
+            Some(_) => client
+                .query_one("SELECT max(version) FROM refinery_schema_history", &[])
+                .await
+                .map_err(backend)?
+                .get(0),
+        };
+        let supported = schema_version();
+        if let Some(found) = found.and_then(|v| u32::try_from(v).ok()) {
+            if found > supported {
+                return Err(StoreError::Incompatible { found, supported });
+            }
+        }
+        let report = runner
+            .run_async(&mut **client)
+            .await
+            .map_err(|e| StoreError::Backend(Box::new(e)))?;
+        for migration in report.applied_migrations() {
+            tracing::info!(
+                version = migration.version(),
+                name = migration.name(),
+                "migrated the PostgreSQL store"
+            );
+        }
+        Ok(())
+    }
+    .await;
+    client
+        .execute("SELECT pg_advisory_unlock($1)", &[&MIGRATION_LOCK])
+        .await
+        .map_err(backend)?;
+    result
+}
+
+/// Every blob of a record: the mesh, then its resources.
+fn blob_hashes(record: &ModelRecord) -> impl Iterator<Item = &str> {
+    std::iter::once(record.mesh_blob.as_str()).chain(record.resources.values().map(String::as_str))
+}
+
+/// Changes the references of blobs by `deltas` (hash → change), in hash order so that two
+/// writers lock them in the same order: a blob gaining its first reference is stored from
+/// `bytes`, one losing its last is removed with its chunks.
+async fn change_refs(
+    tx: &Transaction<'_>,
+    deltas: &BTreeMap<String, i64>,
+    bytes: &BTreeMap<String, Bytes>,
+) -> StoreResult<()> {
+    for (hash, &delta) in deltas {
+        if delta > 0 {
+            let file = bytes.get(hash).ok_or_else(|| StoreError::Corrupt {
+                key: hash.clone(),
+                message: "a blob gained a reference without its bytes".to_string(),
+            })?;
+            let row = tx
+                .query_one(
+                    "INSERT INTO blobs (hash, size, refs) VALUES ($1, $2, $3) \
+                     ON CONFLICT (hash) DO UPDATE SET refs = blobs.refs + EXCLUDED.refs \
+                     RETURNING refs",
+                    &[hash, &(file.len() as i64), &delta],
+                )
+                .await
+                .map_err(backend)?;
+            if row.get::<_, i64>(0) == delta {
+                for (seq, chunk) in file.chunks(CHUNK_BYTES).enumerate() {
+                    tx.execute(
+                        "INSERT INTO blob_chunks (hash, seq, bytes) VALUES ($1, $2, $3)",
+                        &[hash, &(seq as i32), &chunk],
+                    )
+                    .await
+                    .map_err(backend)?;
+                }
+            }
+        } else if delta < 0 {
+            // The last references go with the blob (and its chunks); fewer only lower it.
+            let removed = tx
+                .execute(
+                    "DELETE FROM blobs WHERE hash = $1 AND refs + $2 <= 0",
+                    &[hash, &delta],
+                )
+                .await
+                .map_err(backend)?;
+            if removed == 0 {
+                tx.execute(
+                    "UPDATE blobs SET refs = refs + $2 WHERE hash = $1",
+                    &[hash, &delta],
+                )
+                .await
+                .map_err(backend)?;
+            }
+        }
+    }
+    Ok(())
+}
+
+/// The record stored under `id`, locked until the transaction ends.
+async fn locked_record(tx: &Transaction<'_>, id: &str) -> StoreResult<Option<ModelRecord>> {
+    tx.query_opt(
+        "SELECT record::text FROM models WHERE id = $1 FOR UPDATE",
+        &[&id],
+    )
+    .await
+    .map_err(backend)?
+    .map(|row| decode_record(id, row.get(0)))
+    .transpose()
+}
+
+/// Removes `old`'s rows but its `models` row (which the caller replaces or deletes).
+async fn unlink(
+    tx: &Transaction<'_>,
+    old: &ModelRecord,
+    deltas: &mut BTreeMap<String, i64>,
+) -> StoreResult<()> {
+    tx.execute("DELETE FROM derived WHERE id = $1", &[&old.id.as_str()])
+        .await
+        .map_err(backend)?;
+    tx.execute(
+        "DELETE FROM content WHERE content_hash = $1 AND id = $2",
+        &[&old.content_hash, &old.id.as_str()],
+    )
+    .await
+    .map_err(backend)?;
+    for hash in blob_hashes(old) {
+        *deltas.entry(hash.to_string()).or_default() -= 1;
+    }
+    Ok(())
+}
+
+async fn read_blob(client: &Transaction<'_>, hash: &str) -> StoreResult<Option<Bytes>> {
+    let Some(size) = client
+        .query_opt("SELECT size FROM blobs WHERE hash = $1", &[&hash])
+        .await
+        .map_err(backend)?
+        .map(|row| row.get::<_, i64>(0))
+    else {
+        return Ok(None);
+    };
+    let mut bytes = BytesMut::with_capacity(usize::try_from(size).unwrap_or(0));
+    // One chunk a query: the file is never one row, nor one result set, in memory twice.
+    let mut seq = 0i32;
+    while let Some(row) = client
+        .query_opt(
+            "SELECT bytes FROM blob_chunks WHERE hash = $1 AND seq = $2",
+            &[&hash, &seq],
+        )
+        .await
+        .map_err(backend)?
+    {
+        bytes.extend_from_slice(row.get::<_, &[u8]>(0));
+        seq += 1;
+    }
+    if bytes.len() as i64 != size {
+        return Err(StoreError::Corrupt {
+            key: hash.to_string(),
+            message: format!("{} of {size} bytes stored", bytes.len()),
+        });
+    }
+    Ok(Some(bytes.freeze()))
+}
+
+impl super::Store for PostgresStore {
+    fn put(
+        &self,
+        record: &ModelRecord,
+        signature: &[u8],
+        upload: &Upload,
+    ) -> StoreResult<Option<ModelRecord>> {
+        let encoded = serde_json::to_string(record).expect("records serialise");
+        let record = Arc::new(record.clone());
+        let signature: Arc<[u8]> = signature.into();
+        let bytes: Arc<BTreeMap<String, Bytes>> = Arc::new(
+            std::iter::once((record.mesh_blob.clone(), upload.mesh.clone()))
+                .chain(
+                    upload
+                        .resources
+                        .values()
+                        .map(|bytes| (sha256_hex(bytes), bytes.clone())),
+                )
+                .collect(),
+        );
+        let encoded: Arc<str> = encoded.into();
+        self.transaction(move |tx| {
+            let (record, signature, bytes, encoded) = (
+                record.clone(),
+                signature.clone(),
+                bytes.clone(),
+                encoded.clone(),
+            );
+            Box::pin(async move {
+                let id = record.id.as_str();
+                let previous = locked_record(tx, id).await?;
+                let mut deltas = BTreeMap::new();
+                if let Some(old) = &previous {
+                    unlink(tx, old, &mut deltas).await?;
+                }
+                for hash in blob_hashes(&record) {
+                    *deltas.entry(hash.to_string()).or_default() += 1;
+                }
+                change_refs(tx, &deltas, &bytes).await?;
+                tx.execute(
+                    "INSERT INTO models (id, content_hash, record, signature) \
+                     VALUES ($1, $2, $3::text::jsonb, $4) \
+                     ON CONFLICT (id) DO UPDATE SET content_hash = EXCLUDED.content_hash, \
+                     record = EXCLUDED.record, signature = EXCLUDED.signature",
+                    &[&id, &record.content_hash, &&*encoded, &&*signature],
+                )
+                .await
+                .map_err(backend)?;
+                tx.execute(
+                    "INSERT INTO content (content_hash, id) VALUES ($1, $2) \
+                     ON CONFLICT (content_hash) DO UPDATE SET id = EXCLUDED.id",
+                    &[&record.content_hash, &id],
+                )
+                .await
+                .map_err(backend)?;
+                Ok(previous)
+            })
+        })
+    }
+
+    fn update_model(&self, record: &ModelRecord, signature: &[u8]) -> StoreResult<bool> {
+        let encoded = serde_json::to_string(record).expect("records serialise");
+        let rows = self.run({
+            let (id, hash, signature) = (
+                record.id.as_str().to_string(),
+                record.content_hash.clone(),
+                signature.to_vec(),
+            );
+            |pool| async move {
+                let client = pool.get().await.map_err(pool_error)?;
+                client
+                    .execute(
+                        "UPDATE models SET record = $3::text::jsonb, signature = $4 \
+                         WHERE id = $1 AND content_hash = $2",
+                        &[&id, &hash, &encoded, &signature],
+                    )
+                    .await
+                    .map_err(backend)
+            }
+        })?;
+        Ok(rows == 1)
+    }
+
+    fn get(&self, id: &str) -> StoreResult<Option<ModelRecord>> {
+        let rows = self.query(
+            "SELECT record::text FROM models WHERE id = $1",
+            vec![Param::Text(id.to_string())],
+        )?;
+        rows.first()
+            .map(|row| decode_record(id, row.get(0)))
+            .transpose()
+    }
+
+    fn signature(&self, id: &str) -> StoreResult<Option<Vec<u8>>> {
+        let rows = self.query(
+            "SELECT signature FROM models WHERE id = $1",
+            vec![Param::Text(id.to_string())],
+        )?;
+        Ok(rows.first().map(|row| row.get(0)))
+    }
+
+    fn upload(&self, id: &str) -> StoreResult<Option<Upload>> {
+        let Some(record) = self.get(id)? else {
+            return Ok(None);
+        };
+        super::assemble_upload(&record, |hash| self.blob(hash)).map(Some)
+    }
+
+    fn blob(&self, hash: &str) -> StoreResult<Option<Bytes>> {
+        let hash = hash.to_string();
+        self.run(|pool| async move {
+            let mut client = pool.get().await.map_err(pool_error)?;
+            // One snapshot for the size and every chunk: a file released meanwhile is read
+            // whole or not at all.
+            let tx = client
+                .build_transaction()
+                .isolation_level(tokio_postgres::IsolationLevel::RepeatableRead)
+                .read_only(true)
+                .start()
+                .await
+                .map_err(backend)?;
+            let blob = read_blob(&tx, &hash).await?;
+            tx.commit().await.map_err(backend)?;
+            Ok(blob)
+        })
+    }
+
+    fn delete(&self, id: &str) -> StoreResult<Option<ModelRecord>> {
+        let id: Arc<str> = id.into();
+        self.transaction(move |tx| {
+            let id = id.clone();
+            Box::pin(async move {
+                let Some(old) = locked_record(tx, &id).await? else {
+                    return Ok(None);
+                };
+                let mut deltas = BTreeMap::new();
+                unlink(tx, &old, &mut deltas).await?;
+                tx.execute("DELETE FROM models WHERE id = $1", &[&&*id])
+                    .await
+                    .map_err(backend)?;
+                change_refs(tx, &deltas, &BTreeMap::new()).await?;
+                Ok(Some(old))
+            })
+        })
+    }
+
+    fn list(&self, after: Option<&str>, limit: usize) -> StoreResult<Vec<ModelRecord>> {
+        let rows = self.query(
+            "SELECT id, record::text FROM models WHERE id > $1 ORDER BY id LIMIT $2",
+            vec![
+                Param::Text(after.unwrap_or("").to_string()),
+                Param::Int(i64::try_from(limit).unwrap_or(i64::MAX)),
+            ],
+        )?;
+        rows.iter()
+            .map(|row| decode_record(row.get(0), row.get(1)))
+            .collect()
+    }
+
+    fn find_content(&self, content_hash: &str) -> StoreResult<Option<ModelId>> {
+        let rows = self.query(
+            "SELECT id FROM content WHERE content_hash = $1",
+            vec![Param::Text(content_hash.to_string())],
+        )?;
+        rows.first().map(|row| parse_id(row.get(0))).transpose()
+    }
+
+    fn load_all(&self) -> Box<dyn Iterator<Item = StoreResult<Loaded>> + '_> {
+        let pages = Pages {
+            after: Some(String::new()),
+            fetch: move |after: &str| -> StoreResult<Page<Loaded>> {
+                let rows = self.query(
+                    "SELECT id, record::text, signature FROM models \
+                     WHERE id > $1 ORDER BY id LIMIT $2",
+                    vec![Param::Text(after.to_string()), Param::Int(PAGE)],
+                )?;
+                rows.iter()
+                    .map(|row| {
+                        let id: &str = row.get(0);
+                        let loaded = Loaded {
+                            record: decode_record(id, row.get(1))?,
+                            signature: row.get(2),
+                        };
+                        Ok((id.to_string(), loaded))
+                    })
+                    .collect()
+            },
+        };
+        Box::new(pages.flatten())
+    }
+
+    fn len(&self) -> usize {
+        self.query("SELECT count(*) FROM models", Vec::new())
+            .ok()
+            .and_then(|rows| rows.first().map(|row| row.get::<_, i64>(0)))
+            .map_or(0, |n| usize::try_from(n).unwrap_or(0))
+    }
+
+    fn derived(&self, cache: Derived, id: &str) -> StoreResult<Option<Vec<u8>>> {
+        let rows = self.query(
+            "SELECT entry FROM derived WHERE cache = $1 AND id = $2",
+            vec![
+                Param::Text(cache_name(cache).to_string()),
+                Param::Text(id.to_string()),
+            ],
+        )?;
+        Ok(rows.first().map(|row| row.get(0)))
+    }
+
+    fn put_derived(
+        &self,
+        cache: Derived,
+        id: &str,
+        content_hash: &str,
+        entry: &[u8],
+    ) -> StoreResult<bool> {
+        // `FOR SHARE` waits for a replacement of the model under way and then sees its new
+        // content: an entry made from the old upload is not kept for the new one.
+        let rows = self.query(
+            "WITH model AS (SELECT id FROM models WHERE id = $2 AND content_hash = $3 FOR SHARE) \
+             INSERT INTO derived (cache, id, entry) SELECT $1, id, $4 FROM model \
+             ON CONFLICT (cache, id) DO UPDATE SET entry = EXCLUDED.entry RETURNING 1",
+            vec![
+                Param::Text(cache_name(cache).to_string()),
+                Param::Text(id.to_string()),
+                Param::Text(content_hash.to_string()),
+                Param::Bytes(entry.to_vec()),
+            ],
+        )?;
+        Ok(!rows.is_empty())
+    }
+
+    fn all_derived(
+        &self,
+        cache: Derived,
+    ) -> Box<dyn Iterator<Item = StoreResult<(ModelId, Vec<u8>)>> + '_> {
+        let pages = Pages {
+            after: Some(String::new()),
+            fetch: move |after: &str| -> StoreResult<Page<(ModelId, Vec<u8>)>> {
+                let rows = self.query(
+                    "SELECT id, entry FROM derived WHERE cache = $1 AND id > $2 \
+                     ORDER BY id LIMIT $3",
+                    vec![
+                        Param::Text(cache_name(cache).to_string()),
+                        Param::Text(after.to_string()),
+                        Param::Int(PAGE),
+                    ],
+                )?;
+                rows.iter()
+                    .map(|row| {
+                        let id: &str = row.get(0);
+                        Ok((id.to_string(), (parse_id(id)?, row.get(1))))
+                    })
+                    .collect()
+            },
+        };
+        Box::new(pages.flatten())
+    }
+
+    fn state(&self, key: &str) -> StoreResult<Option<Vec<u8>>> {
+        let rows = self.query(
+            "SELECT value FROM state WHERE key = $1",
+            vec![Param::Text(key.to_string())],
+        )?;
+        Ok(rows.first().map(|row| row.get(0)))
+    }
+
+    fn set_state(&self, key: &str, value: &[u8]) -> StoreResult<()> {
+        self.query(
+            "INSERT INTO state (key, value) VALUES ($1, $2) \
+             ON CONFLICT (key) DO UPDATE SET value = EXCLUDED.value RETURNING 1",
+            vec![Param::Text(key.to_string()), Param::Bytes(value.to_vec())],
+        )?;
+        Ok(())
+    }
+}
+
+/// Rows read a page at a time in id order (keyset pagination: each page starts after the
+/// last id of the one before), so a catalogue of any size loads in bounded memory. Yields
+/// pages of items; an error ends it.
+struct Pages<F> {
+    /// Where the next page starts; `None` once done.
+    after: Option<String>,
+    fetch: F,
+}
+
+/// One page: each item with its id.
+type Page<T> = Vec<(String, T)>;
+
+impl<T, F> Iterator for Pages<F>
+where
+    F: FnMut(&str) -> StoreResult<Page<T>>,
+{
+    type Item = Vec<StoreResult<T>>;
+
+    fn next(&mut self) -> Option<Self::Item> {
+        let after = self.after.take()?;
+        match (self.fetch)(&after) {
+            Err(e) => Some(vec![Err(e)]),
+            Ok(rows) if rows.is_empty() => None,
+            Ok(rows) => {
+                if rows.len() as i64 == PAGE {
+                    self.after = rows.last().map(|(id, _)| id.clone());
+                }
+                Some(rows.into_iter().map(|(_, item)| Ok(item)).collect())
+            }
+        }
+    }
+}
