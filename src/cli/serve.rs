@@ -1,4 +1,4 @@
-//! `salient serve`: the HTTP service on its sled store.
+//! `salient serve`: the HTTP service on its sled store, or on a PostgreSQL database.
 
 use std::net::SocketAddr;
 use std::path::PathBuf;
@@ -9,7 +9,7 @@ use anyhow::Context;
 use salient_core::display::UpAxis;
 use salient_server::api::config::Secret;
 use salient_server::api::{app, App, AppState, Config};
-use salient_server::store::SledStore;
+use salient_server::store::{PostgresStore, SledStore, Store};
 
 /// Flags override the environment (`SALIENT_*`), which overrides the configuration file,
 /// which overrides the defaults. API keys come from `SALIENT_API_KEYS` (`SCOPE:KEY,…`; scopes
@@ -19,9 +19,14 @@ pub struct Args {
     /// Address to listen on (port 0 picks a free one).
     #[arg(long, env = "SALIENT_ADDR")]
     addr: Option<SocketAddr>,
-    /// Folder of the store (created if missing).
+    /// Folder of the store (created if missing); with `--store`, of this process's caches.
     #[arg(long, env = "SALIENT_DATA")]
     data: Option<PathBuf>,
+    /// A PostgreSQL database to keep the catalogue in instead of the sled store in `--data`
+    /// (`postgres://…` or `key=value` pairs; `sslmode` honoured). Give it in the environment:
+    /// a command line is visible to every user of the machine (`ps`).
+    #[arg(long, env = "SALIENT_STORE", hide_env_values = true)]
+    store: Option<String>,
     /// Folder of the ranking index's file of light field descriptors (made again at each
     /// start) and of upload bodies over 16 MiB while they are read; on a disk, not a memory
     /// file system. Default: the store's folder.
@@ -131,10 +136,24 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         .init();
     salient_server::api::pool::limit_malloc_arenas();
     let config = args.config()?;
-    let store = SledStore::open(&config.data)
-        .with_context(|| format!("cannot open the store in {}", config.data.display()))?;
+    // The connection string is never printed: it may hold a password.
+    let store: Arc<dyn Store> = match &args.store {
+        Some(url) => {
+            // sled makes its folder; here it holds only the caches (the index's shelf).
+            std::fs::create_dir_all(&config.data).with_context(|| {
+                format!("cannot make the cache folder {}", config.data.display())
+            })?;
+            Arc::new(
+                PostgresStore::open(url).context("cannot open the PostgreSQL store (--store)")?,
+            )
+        }
+        None => Arc::new(
+            SledStore::open(&config.data)
+                .with_context(|| format!("cannot open the store in {}", config.data.display()))?,
+        ),
+    };
     let addr = config.addr;
-    let app_state = AppState(Arc::new(App::new(config, Arc::new(store))?));
+    let app_state = AppState(Arc::new(App::new(config, store)?));
     app_state.0.lower_extraction_priority();
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .enable_all()

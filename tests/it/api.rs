@@ -155,9 +155,10 @@ async fn models_can_be_added_listed_read_replaced_and_deleted(#[case] store: Sto
     assert_eq!(health["models"], 2);
 }
 
+#[apply(stores)]
 #[tokio::test]
-async fn multipart_uploads_carry_gltf_resources_and_fields() {
-    let app = TestApp::new();
+async fn multipart_uploads_carry_gltf_resources_and_fields(#[case] store: Stores) {
+    let app = TestApp::on(store);
     let form = || {
         Form::new()
             .file("file", "tetra.gltf", fixture("gltf_external/tetra.gltf"))
@@ -192,9 +193,12 @@ async fn multipart_uploads_carry_gltf_resources_and_fields() {
 /// What browsers and web pipelines send: a Blob named `blob` with its format in `format`, a
 /// `.gltf` whose buffer is `buffers/NAME` sent as `NAME`; files of other applications are
 /// refused as unsupported, with a conversion.
+#[apply(stores)]
 #[tokio::test]
-async fn uploads_as_browsers_send_them_and_unsupported_kinds_say_how_to_convert() {
-    let app = TestApp::new();
+async fn uploads_as_browsers_send_them_and_unsupported_kinds_say_how_to_convert(
+    #[case] store: Stores,
+) {
+    let app = TestApp::on(store);
     let blob = Form::new()
         .file("file", "blob", fixture("capod_horse_m155_split.glb"))
         .text("format", "glb")
@@ -330,9 +334,10 @@ async fn uploads_as_browsers_send_them_and_unsupported_kinds_say_how_to_convert(
     }
 }
 
+#[apply(stores)]
 #[tokio::test]
-async fn bad_input_gets_the_right_status_and_the_server_keeps_serving() {
-    let app = TestApp::with_config(|config| {
+async fn bad_input_gets_the_right_status_and_the_server_keeps_serving(#[case] store: Stores) {
+    let app = TestApp::on_with_config(store, |config| {
         config.max_body_bytes = 100_000;
         config.max_upload_bytes = 200_000;
         config.limits.max_input_vertices = 5000;
@@ -741,9 +746,10 @@ async fn search_similar_and_extract() {
     );
 }
 
+#[apply(stores)]
 #[tokio::test]
-async fn operations_endpoints() {
-    let app = TestApp::new();
+async fn operations_endpoints(#[case] store: Stores) {
+    let app = TestApp::on(store);
     for path in ["/healthz", "/readyz"] {
         let status = json(app.get(path).send().await).await;
         assert_eq!(status["status"], "ok");
@@ -878,9 +884,10 @@ async fn internal_errors_say_nothing_of_their_detail() {
 /// holding the current copy gets a 304.
 /// A body past the spool threshold, raw or in a form, is read through its spool
 /// (`salient_server::spool`): stored byte for byte, and extracted as the same mesh sent small.
+#[apply(stores)]
 #[tokio::test]
-async fn a_body_past_the_spool_threshold_is_stored_and_extracted() {
-    let app = TestApp::new();
+async fn a_body_past_the_spool_threshold_is_stored_and_extracted(#[case] store: Stores) {
+    let app = TestApp::on(store);
     let horse = fixture("capod_horse_m155.obj");
     let mut padded = vec![b'#'; SPOOL_BYTES];
     padded.push(b'\n');
@@ -1002,9 +1009,10 @@ async fn extractions(app: &TestApp) -> u64 {
 
 /// A search's query is checked before its upload is extracted: a bad `k` or `w` costs no
 /// extraction.
+#[apply(stores)]
 #[tokio::test]
-async fn a_bad_search_query_is_refused_before_any_extraction() {
-    let app = TestApp::new();
+async fn a_bad_search_query_is_refused_before_any_extraction(#[case] store: Stores) {
+    let app = TestApp::on(store);
     let horse = fixture("capod_horse_m155.obj");
     let search = |query: &str| {
         app.post(format!("/v1/search?{query}"))

@@ -38,6 +38,16 @@ impl TestApp {
         Self::build(Config::default(), store.open(), None)
     }
 
+    /// The default configuration changed by `configure`, over an empty store of kind `store`.
+    pub fn on_with_config(
+        store: crate::stores::Stores,
+        configure: impl FnOnce(&mut Config),
+    ) -> Self {
+        let mut config = Config::default();
+        configure(&mut config);
+        Self::build(config, store.open(), None)
+    }
+
     /// Any configuration, store and ranking hook.
     pub fn build(config: Config, store: Arc<dyn Store>, ranking_hook: Option<Hook>) -> Self {
         let mut app = App::new(config, store).expect("the service starts");

@@ -12,6 +12,8 @@ use salient_server::store::InMemoryStore;
 
 use crate::app::{expect_error, TestApp};
 use crate::server::{fixture, Server};
+use crate::stores::{stores, Stores};
+use rstest_reuse::apply;
 
 const READ: &str = "read-key-0123456789";
 const WRITE: &str = "write-key-0123456789";
@@ -23,9 +25,10 @@ fn keyed() -> TestApp {
     })
 }
 
+#[apply(stores)]
 #[tokio::test]
-async fn each_key_has_its_own_rate_and_is_told_when_to_come_back() {
-    let app = TestApp::with_config(|config| {
+async fn each_key_has_its_own_rate_and_is_told_when_to_come_back(#[case] store: Stores) {
+    let app = TestApp::on_with_config(store, |config| {
         config.inline_keys = Some(Secret(format!("read:{READ},write:{WRITE}")));
         config.requests_per_minute = 3;
     });
@@ -145,9 +148,10 @@ async fn each_route_needs_its_scope() {
     );
 }
 
+#[apply(stores)]
 #[tokio::test]
-async fn browsers_may_send_the_key_from_allowed_origins() {
-    let app = TestApp::with_config(|config| {
+async fn browsers_may_send_the_key_from_allowed_origins(#[case] store: Stores) {
+    let app = TestApp::on_with_config(store, |config| {
         config.inline_keys = Some(Secret(format!("read:{READ}")));
         config.cors_origins = vec!["https://assets.example".into()];
     });

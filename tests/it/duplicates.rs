@@ -17,6 +17,8 @@ use serde_json::Value;
 use crate::app::TestApp;
 use crate::server::{fixture, obj};
 use crate::shapes;
+use crate::stores::{stores, Stores};
+use rstest_reuse::apply;
 
 /// A body with five limbs.
 fn model() -> RawMesh {
@@ -248,9 +250,10 @@ async fn json(response: crate::app::TestResponse) -> Value {
     response.json()
 }
 
+#[apply(stores)]
 #[tokio::test]
-async fn duplicates_are_checked_rejected_and_grouped_over_http() {
-    let app = TestApp::new();
+async fn duplicates_are_checked_rejected_and_grouped_over_http(#[case] store: Stores) {
+    let app = TestApp::on(store);
     for (id, bytes) in [
         ("body", obj(&model())),
         ("posed", obj(&posed())),
@@ -416,9 +419,10 @@ async fn a_dismissed_pair_leaves_the_groups_and_the_check_until_taken_back() {
     crate::app::expect_error(&response, StatusCode::NOT_FOUND, "not_found");
 }
 
+#[apply(stores)]
 #[tokio::test]
-async fn pages_of_groups_follow_their_first_ids() {
-    let app = TestApp::new();
+async fn pages_of_groups_follow_their_first_ids(#[case] store: Stores) {
+    let app = TestApp::on(store);
     for (id, mesh) in [
         ("a1", model()),
         ("a2", rescaled(&model())),
@@ -438,9 +442,10 @@ async fn pages_of_groups_follow_their_first_ids() {
 
 /// Compressed copies of a stored model, as web tools write them (gltfpack, gltf-transform:
 /// `tests/fixtures/web/make.sh`), upload over HTTP and are found as that model.
+#[apply(stores)]
 #[tokio::test]
-async fn compressed_gltf_copies_are_found_as_their_original() {
-    let app = TestApp::new();
+async fn compressed_gltf_copies_are_found_as_their_original(#[case] store: Stores) {
+    let app = TestApp::on(store);
     let response = app
         .add("id=horse", "model/obj", fixture("capod_horse_m155.obj"))
         .await;

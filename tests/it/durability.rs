@@ -9,14 +9,24 @@ use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 use reqwest::{Client, StatusCode};
-use salient_server::store::{SledStore, Store};
+use rstest_reuse::apply;
+use salient_server::store::{PostgresStore, SledStore, Store};
 use serde_json::Value;
 use server::{obj, Server};
 
+use crate::stores::{fresh_database_url, stores, Stores};
+
+#[apply(stores)]
 #[tokio::test(flavor = "multi_thread", worker_threads = 4)]
-async fn acknowledged_models_survive_a_kill_and_nothing_is_half_written() {
+async fn acknowledged_models_survive_a_kill_and_nothing_is_half_written(#[case] kind: Stores) {
     let dir = tempfile::tempdir().unwrap();
     let store = dir.path().join("store");
+    // Over PostgreSQL, `--data` holds only the process's caches.
+    let database = (kind == Stores::Postgres).then(fresh_database_url);
+    let flags: Vec<&str> = database
+        .iter()
+        .flat_map(|url| ["--store", url.as_str()])
+        .collect();
     let acknowledged = Arc::new(Mutex::new(BTreeSet::new()));
     let attempted = Arc::new(Mutex::new(BTreeSet::new()));
     let meshes: Vec<Vec<u8>> = (2..6)
@@ -24,7 +34,7 @@ async fn acknowledged_models_survive_a_kill_and_nothing_is_half_written() {
         .collect();
 
     for round in 0..3 {
-        let mut server = Server::start(&store, &[]);
+        let mut server = Server::start(&store, &flags);
         // Writers count their acknowledged writes here; the server is killed once a few
         // went through in this round, while the others are in flight.
         let (acked, mut progress) = tokio::sync::watch::channel(0usize);
@@ -66,7 +76,7 @@ async fn acknowledged_models_survive_a_kill_and_nothing_is_half_written() {
         }
     }
 
-    let server = Server::start(&store, &[]);
+    let server = Server::start(&store, &flags);
     let client = Client::new();
     let listed = server.listed_ids().await;
     let acknowledged = acknowledged.lock().unwrap().clone();
@@ -108,7 +118,10 @@ async fn acknowledged_models_survive_a_kill_and_nothing_is_half_written() {
     assert_eq!(similar.status(), StatusCode::OK);
     // And the original file of each, byte for byte, read from the store itself.
     drop(server);
-    let store = SledStore::open(&store).unwrap();
+    let store: Box<dyn Store> = match &database {
+        Some(url) => Box::new(PostgresStore::open(url).unwrap()),
+        None => Box::new(SledStore::open(&store).unwrap()),
+    };
     for id in &listed {
         let i: usize = id.rsplit('-').next().unwrap().parse().unwrap();
         let upload = store.upload(id).unwrap().unwrap();

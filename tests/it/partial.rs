@@ -23,6 +23,8 @@ use serde_json::Value;
 use crate::app::TestApp;
 use crate::server::obj;
 use crate::shapes;
+use crate::stores::{stores, Stores};
+use rstest_reuse::apply;
 
 /// A library whose patches are not made yet.
 const NO_PATCHES: &[(f64, String)] = &[];
@@ -503,9 +505,10 @@ async fn json(response: crate::app::TestResponse) -> Value {
     response.json()
 }
 
+#[apply(stores)]
 #[tokio::test]
-async fn a_part_is_searched_over_http() {
-    let app = TestApp::new();
+async fn a_part_is_searched_over_http(#[case] store: Stores) {
+    let app = TestApp::on(store);
     for (id, mesh) in collection() {
         let response = app.add(&format!("id={id}"), "model/obj", obj(&mesh)).await;
         assert_eq!(response.status(), StatusCode::CREATED, "{id}");

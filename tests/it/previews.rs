@@ -17,6 +17,8 @@ use serde_json::Value;
 use crate::app::{expect_error, Form, TestApp};
 use crate::server::{fixture, obj};
 use crate::shapes;
+use crate::stores::{stores, Stores};
+use rstest_reuse::apply;
 
 /// The five-tipped star, moved away from the origin and scaled, so that "own coordinates"
 /// differ from normalised ones.
@@ -193,9 +195,12 @@ fn read_glb(bytes: &[u8]) -> Glb {
     }
 }
 
+#[apply(stores)]
 #[tokio::test]
-async fn preview_meshes_carry_regions_and_points_in_the_models_own_coordinates() {
-    let app = TestApp::with_config(|c| c.up_axis = salient_core::display::UpAxis::Z);
+async fn preview_meshes_carry_regions_and_points_in_the_models_own_coordinates(
+    #[case] store: Stores,
+) {
+    let app = TestApp::on_with_config(store, |c| c.up_axis = salient_core::display::UpAxis::Z);
     with_models(&app).await;
     let record = app.get_json("/v1/models/star").await;
     let features = record["features"].as_u64().unwrap() as usize;
@@ -266,9 +271,10 @@ async fn preview_meshes_carry_regions_and_points_in_the_models_own_coordinates()
     assert!(bad.status().is_client_error(), "{}", bad.status());
 }
 
+#[apply(stores)]
 #[tokio::test]
-async fn explained_results_give_every_distance_and_the_emd_plan() {
-    let app = TestApp::new();
+async fn explained_results_give_every_distance_and_the_emd_plan(#[case] store: Stores) {
+    let app = TestApp::on(store);
     with_models(&app).await;
     let star_signature = app.get_json("/v1/models/star/signature").await;
 
@@ -353,9 +359,10 @@ async fn explained_results_give_every_distance_and_the_emd_plan() {
     );
 }
 
+#[apply(stores)]
 #[tokio::test]
-async fn a_comparison_of_twins_shows_the_same_picture_twice() {
-    let app = TestApp::new();
+async fn a_comparison_of_twins_shows_the_same_picture_twice(#[case] store: Stores) {
+    let app = TestApp::on(store);
     with_models(&app).await;
     let twins = app
         .get("/v1/compare?a=star&b=star-copy&size=96")
@@ -385,9 +392,10 @@ async fn a_comparison_of_twins_shows_the_same_picture_twice() {
     expect_error(&invalid, StatusCode::BAD_REQUEST, "invalid_id");
 }
 
+#[apply(stores)]
 #[tokio::test]
-async fn the_page_is_served_to_everyone_and_its_data_only_with_a_key() {
-    let app = TestApp::with_config(|c| {
+async fn the_page_is_served_to_everyone_and_its_data_only_with_a_key(#[case] store: Stores) {
+    let app = TestApp::on_with_config(store, |c| {
         c.inline_keys = Some(Secret("read:page-test-key-0123456789".into()))
     });
     let page = app.get("/").send().await;
@@ -429,9 +437,10 @@ async fn the_page_is_served_to_everyone_and_its_data_only_with_a_key() {
 /// Each model stands on its own up axis: its format's (glTF +y; STL, 3MF +z), else the
 /// server's, unless it names its own on upload or by `PATCH`. Only pictures turn: the
 /// signature is untouched and nothing is re-extracted.
+#[apply(stores)]
 #[tokio::test]
-async fn each_model_stands_on_its_own_up_axis() {
-    let app = TestApp::new();
+async fn each_model_stands_on_its_own_up_axis(#[case] store: Stores) {
+    let app = TestApp::on(store);
     let horse = fixture("capod_horse_m155.obj");
     let stl = salient_core::mesh::write::Export::BinaryStl.write(
         &salient_core::mesh::load_bytes(

@@ -15,7 +15,10 @@ use salient_server::store::{InMemoryStore, PostgresStore, Store};
 /// Where a test's service keeps its models.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Stores {
-    Memory,
+    /// The service's own: in memory for a service in process ([`crate::app`]), sled for
+    /// the real binary ([`crate::server`]).
+    Embedded,
+    /// A fresh database on the PostgreSQL test server.
     Postgres,
 }
 
@@ -23,7 +26,7 @@ impl Stores {
     /// An empty store of this kind.
     pub fn open(self) -> Arc<dyn Store> {
         match self {
-            Stores::Memory => Arc::new(InMemoryStore::new()),
+            Stores::Embedded => Arc::new(InMemoryStore::new()),
             Stores::Postgres => Arc::new(fresh_database()),
         }
     }
@@ -33,7 +36,7 @@ impl Stores {
 /// `#[case] store: Stores`.
 #[template]
 #[rstest::rstest]
-#[case::memory(crate::stores::Stores::Memory)]
+#[case::embedded(crate::stores::Stores::Embedded)]
 // rstest gives a case the attributes between it and the case before.
 #[cfg_attr(
     not(postgres_tests),
@@ -51,7 +54,7 @@ fn server() -> String {
 
 /// `url` with another database: a URL gains a `dbname` parameter, `key=value` pairs a pair
 /// (the last of either wins).
-pub fn with_database(url: &str, database: &str) -> String {
+fn with_database(url: &str, database: &str) -> String {
     if url.starts_with("postgres://") || url.starts_with("postgresql://") {
         let separator = if url.contains('?') { '&' } else { '?' };
         format!("{url}{separator}dbname={database}")
@@ -62,6 +65,11 @@ pub fn with_database(url: &str, database: &str) -> String {
 
 /// A new, empty database on the test server, opened as a store.
 pub fn fresh_database() -> PostgresStore {
+    PostgresStore::open(&fresh_database_url()).expect("the test database opens")
+}
+
+/// The connection string of a new, empty database on the test server.
+pub fn fresh_database_url() -> String {
     static NEXT: AtomicUsize = AtomicUsize::new(0);
     let name = format!(
         "salient_test_{}_{}",
@@ -99,5 +107,5 @@ pub fn fresh_database() -> PostgresStore {
         })
     };
     admin.join().expect("the database is created");
-    PostgresStore::open(&with_database(&server, &name)).expect("the test database opens")
+    with_database(&server, &name)
 }
