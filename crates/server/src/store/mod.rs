@@ -71,6 +71,25 @@ fn assemble_upload(
     ))
 }
 
+/// Every blob of a record: the mesh, then its resources.
+fn blob_hashes(record: &ModelRecord) -> impl Iterator<Item = &str> {
+    std::iter::once(record.mesh_blob.as_str()).chain(record.resources.values().map(String::as_str))
+}
+
+/// The files of `upload` with their SHA-256 (the blobs `record` names): the mesh, then its
+/// resources.
+fn upload_files<'a>(
+    record: &ModelRecord,
+    upload: &'a Upload,
+) -> impl Iterator<Item = (String, &'a Bytes)> + 'a {
+    std::iter::once((record.mesh_blob.clone(), &upload.mesh)).chain(
+        upload
+            .resources
+            .values()
+            .map(|bytes| (crate::model::sha256_hex(bytes), bytes)),
+    )
+}
+
 /// Data made from a model's upload and kept beside it, bound to its content: made again
 /// whenever missing, removed with the model.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]

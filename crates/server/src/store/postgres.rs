@@ -24,8 +24,8 @@ use tokio_postgres::config::{Host, SslMode};
 use tokio_postgres::error::SqlState;
 use tokio_postgres::{NoTls, Transaction};
 
-use super::{Derived, Loaded, StoreError, StoreResult};
-use crate::model::{sha256_hex, ModelId, ModelRecord, Upload};
+use super::{blob_hashes, upload_files, Derived, Loaded, StoreError, StoreResult};
+use crate::model::{ModelId, ModelRecord, Upload};
 
 mod embedded {
     refinery::embed_migrations!("../../migrations/postgres");
@@ -319,11 +319,6 @@ async fn migrate(pool: &Pool) -> StoreResult<()> {
     result
 }
 
-/// Every blob of a record: the mesh, then its resources.
-fn blob_hashes(record: &ModelRecord) -> impl Iterator<Item = &str> {
-    std::iter::once(record.mesh_blob.as_str()).chain(record.resources.values().map(String::as_str))
-}
-
 /// Changes the references of blobs by `deltas` (hash → change), in hash order so that two
 /// writers lock them in the same order: a blob gaining its first reference is stored from
 /// `bytes`, one losing its last is removed with its chunks.
@@ -455,13 +450,8 @@ impl super::Store for PostgresStore {
         let record = Arc::new(record.clone());
         let signature: Arc<[u8]> = signature.into();
         let bytes: Arc<BTreeMap<String, Bytes>> = Arc::new(
-            std::iter::once((record.mesh_blob.clone(), upload.mesh.clone()))
-                .chain(
-                    upload
-                        .resources
-                        .values()
-                        .map(|bytes| (sha256_hex(bytes), bytes.clone())),
-                )
+            upload_files(&record, upload)
+                .map(|(hash, bytes)| (hash, bytes.clone()))
                 .collect(),
         );
         let encoded: Arc<str> = encoded.into();

@@ -13,8 +13,8 @@ use std::sync::Mutex;
 use sled::transaction::{ConflictableTransactionError, TransactionalTree};
 use sled::Transactional;
 
-use super::{Derived, Loaded, StoreError, StoreResult};
-use crate::model::{sha256_hex, ModelId, ModelRecord, Upload};
+use super::{blob_hashes, upload_files, Derived, Loaded, StoreError, StoreResult};
+use crate::model::{ModelId, ModelRecord, Upload};
 
 #[path = "../../../../migrations/mod.rs"]
 mod migrations;
@@ -243,11 +243,6 @@ fn release_blob(
     Ok(())
 }
 
-/// Every blob of a record: the mesh, then its resources.
-fn blob_hashes(record: &ModelRecord) -> impl Iterator<Item = &str> {
-    std::iter::once(record.mesh_blob.as_str()).chain(record.resources.values().map(String::as_str))
-}
-
 /// The trees a write of a whole model changes, in a transaction: models, signatures, blobs,
 /// blob files, blob references, content, previews, patches.
 type ModelTrees = (
@@ -288,15 +283,9 @@ impl super::Store for SledStore {
         upload: &Upload,
     ) -> StoreResult<Option<ModelRecord>> {
         let encoded = serde_json::to_vec(record).expect("records serialise");
-        let files: Vec<(String, &[u8])> =
-            std::iter::once((record.mesh_blob.clone(), &upload.mesh[..]))
-                .chain(
-                    upload
-                        .resources
-                        .values()
-                        .map(|bytes| (sha256_hex(bytes), &bytes[..])),
-                )
-                .collect();
+        let files: Vec<(String, &[u8])> = upload_files(record, upload)
+            .map(|(hash, bytes)| (hash, &bytes[..]))
+            .collect();
         let _files = self.file_lock.lock().expect("never poisoned");
         for (hash, bytes) in &files {
             if bytes.len() >= FILE_BLOB_BYTES && !self.blob_refs.contains_key(hash)? {
