@@ -54,6 +54,11 @@ impl TestApp {
         if let Some(hook) = ranking_hook {
             app.set_ranking_hook(hook);
         }
+        Self::serving(app)
+    }
+
+    /// `app`, made and set up by the test.
+    pub fn serving(app: App) -> Self {
         let app = Arc::new(app);
         let router = api::app(AppState(app.clone()));
         Self { app, router }

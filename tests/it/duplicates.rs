@@ -21,7 +21,7 @@ use crate::stores::{stores, Stores};
 use rstest_reuse::apply;
 
 /// A body with five limbs.
-fn model() -> RawMesh {
+pub fn model() -> RawMesh {
     shapes::star(4, &shapes::five_tips())
 }
 
@@ -51,12 +51,12 @@ fn stretched(mesh: &RawMesh) -> RawMesh {
 
 /// `mesh` remeshed to about half its vertices (meshoptimizer's edge collapse), then rotated,
 /// scaled by 0.1 and moved.
-fn remeshed(mesh: &RawMesh) -> RawMesh {
+pub fn remeshed(mesh: &RawMesh) -> RawMesh {
     disguised(mesh, disguise::edge_collapse)
 }
 
 /// `mesh` in inches rather than millimetres, moved: the same geometry.
-fn rescaled(mesh: &RawMesh) -> RawMesh {
+pub fn rescaled(mesh: &RawMesh) -> RawMesh {
     let motion = DMat4::from_scale_rotation_translation(
         DVec3::splat(25.4),
         DQuat::IDENTITY,
@@ -66,7 +66,7 @@ fn rescaled(mesh: &RawMesh) -> RawMesh {
 }
 
 /// The file of `mesh` as `export` writes it, read back as an upload would be.
-fn file(mesh: &RawMesh, export: Export) -> (Vec<u8>, RawMesh) {
+pub fn file(mesh: &RawMesh, export: Export) -> (Vec<u8>, RawMesh) {
     let bytes = export.write(mesh);
     let read = load_bytes(&bytes, export.format(), &NoResources, &Limits::default()).unwrap();
     (bytes, read)

@@ -37,6 +37,7 @@ mod partial;
 mod previews;
 mod rank;
 mod reindex;
+mod replicas;
 mod signature;
 mod store;
 mod weld;

@@ -109,3 +109,15 @@ pub fn fresh_database_url() -> String {
     admin.join().expect("the database is created");
     with_database(&server, &name)
 }
+
+/// A test that needs the PostgreSQL test server, and no other store: ignored with the
+/// reason when the tests were built without one, as the [`stores`] template's case is.
+macro_rules! postgres_only {
+    ($test:item) => {
+        #[cfg_attr(
+            not(postgres_tests),
+            ignore = "no PostgreSQL: set SALIENT_TEST_POSTGRES to a server's connection string (.ci/run starts one)"
+        )]
+        $test
+    };
+}

@@ -104,6 +104,11 @@ impl Catalog {
         });
     }
 
+    /// Replaces the whole catalogue (loaded again from the store).
+    pub fn replace(&self, snapshot: Snapshot) {
+        self.current.store(Arc::new(snapshot));
+    }
+
     /// Removes a model; returns the number of models.
     pub fn remove(&self, id: &ModelId) -> usize {
         self.update(|s| {

@@ -67,6 +67,9 @@ pub struct Config {
     /// Requests a minute each API key may make (in bursts of as many); beyond, 429 with
     /// `Retry-After`. 0: no limit (a bulk ingest sends a few requests per model).
     pub requests_per_minute: u32,
+    /// How long a request that carries a `Salient-Position` (on a store shared by replicas)
+    /// waits for this replica to apply that change before it is answered 503.
+    pub position_wait_ms: u64,
 }
 
 /// A value that must not be printed: its `Debug` says only that it is there.
@@ -109,6 +112,7 @@ impl Default for Config {
             metrics_open: false,
             up_axis: UpAxis::Y,
             requests_per_minute: 0,
+            position_wait_ms: 5000,
         }
     }
 }

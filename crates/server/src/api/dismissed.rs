@@ -20,7 +20,7 @@ use crate::model::ModelId;
 use crate::store::{Store, StoreError, StoreResult};
 
 /// The store's state key of the dismissals.
-const STATE_KEY: &str = "dismissed_duplicates";
+pub(crate) const STATE_KEY: &str = "dismissed_duplicates";
 
 /// A pair of models that are not duplicates, whatever the verification says.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
@@ -85,6 +85,13 @@ impl Dismissed {
         )))
     }
 
+    /// Reads the dismissals again, as another replica changed them.
+    pub fn reload(&self, store: &dyn Store) -> StoreResult<()> {
+        let loaded = Self::load(store)?.0.into_inner().expect("never poisoned");
+        *self.0.write().expect("never poisoned") = loaded;
+        Ok(())
+    }
+
     /// Whether the files with content hashes `x` and `y` were dismissed as a pair.
     pub fn contains(&self, x: &str, y: &str) -> bool {
         self.0
@@ -108,11 +115,14 @@ impl Dismissed {
 }
 
 /// The dismissals after `change`, kept in the store before they are used (under the
-/// service's write lock, so that two changes do not overwrite each other).
+/// service's write lock and, on a shared store, a lock of every replica's, so that two
+/// changes do not overwrite each other).
 async fn change(
     app: &AppState,
     change: impl FnOnce(&mut BTreeMap<(String, String), Dismissal>) -> bool,
 ) -> Result<bool, AppError> {
+    // Another replica's change is seen and not overwritten.
+    let _across = app.hold_shared("dismissed").await?;
     let _write = app.writes.lock().await;
     let mut next = app.dismissed.0.read().expect("never poisoned").clone();
     if !change(&mut next) {

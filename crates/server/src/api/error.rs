@@ -7,7 +7,7 @@
 
 use axum::extract::multipart::MultipartError;
 use axum::extract::rejection::{BytesRejection, JsonRejection, PathRejection, QueryRejection};
-use axum::http::{header, StatusCode};
+use axum::http::{header, HeaderValue, StatusCode};
 use axum::response::{IntoResponse, Response};
 use axum::Json;
 use serde::Serialize;
@@ -56,6 +56,14 @@ pub enum AppError {
     Overloaded { retry_after_secs: u64 },
     #[error("extraction did not finish within {0} s")]
     Timeout(u64),
+    /// The store cannot be reached now (a database restarting): retry. The text is for the
+    /// log only.
+    #[error("store unavailable: {0}")]
+    StoreUnavailable(String),
+    /// This replica has not applied the change a request waits for (`Salient-Position`) in
+    /// time: retry.
+    #[error("this replica has not yet applied change {0}; retry in {RETRY_BEHIND_SECS} s")]
+    Behind(u64),
     /// Our fault. The text is for the log only.
     #[error("internal error: {0}")]
     Internal(String),
@@ -64,6 +72,11 @@ pub enum AppError {
 /// What a client is told of an internal error.
 const INTERNAL_MESSAGE: &str =
     "internal error; the server log has the details under this response's x-request-id";
+
+/// How long a client is told to wait before it retries when the store is unavailable.
+const RETRY_STORE_SECS: u64 = 2;
+/// … and when this replica is behind the position it asked for.
+const RETRY_BEHIND_SECS: u64 = 1;
 
 /// The JSON body of every error response.
 #[derive(Debug, Serialize, serde::Deserialize, utoipa::ToSchema)]
@@ -99,6 +112,9 @@ impl AppError {
     pub fn public_message(&self) -> String {
         match self {
             AppError::Internal(_) => INTERNAL_MESSAGE.to_string(),
+            AppError::StoreUnavailable(_) => format!(
+                "the store cannot be reached now; retry in {RETRY_STORE_SECS} s (what needs only this replica's memory, ranking among them, still answers)"
+            ),
             other => other.to_string(),
         }
     }
@@ -122,6 +138,8 @@ impl AppError {
             AppError::RateLimited { .. } => (StatusCode::TOO_MANY_REQUESTS, "rate_limited"),
             AppError::Overloaded { .. } => (StatusCode::SERVICE_UNAVAILABLE, "overloaded"),
             AppError::Timeout(_) => (StatusCode::SERVICE_UNAVAILABLE, "timeout"),
+            AppError::StoreUnavailable(_) => (StatusCode::SERVICE_UNAVAILABLE, "store_unavailable"),
+            AppError::Behind(_) => (StatusCode::SERVICE_UNAVAILABLE, "behind"),
             AppError::Internal(_) => (StatusCode::INTERNAL_SERVER_ERROR, "internal"),
         }
     }
@@ -143,14 +161,14 @@ impl IntoResponse for AppError {
                 },
             },
         });
-        match self {
+        let retry_after = match &self {
             AppError::Overloaded { retry_after_secs }
-            | AppError::RateLimited { retry_after_secs } => (
-                status,
-                [(header::RETRY_AFTER, retry_after_secs.to_string())],
-                body,
-            )
-                .into_response(),
+            | AppError::RateLimited { retry_after_secs } => Some(*retry_after_secs),
+            AppError::StoreUnavailable(_) => Some(RETRY_STORE_SECS),
+            AppError::Behind(_) => Some(RETRY_BEHIND_SECS),
+            _ => None,
+        };
+        let mut response = match self {
             AppError::Unauthorized(_) => (
                 status,
                 [(header::WWW_AUTHENTICATE, "Bearer realm=\"salient\"")],
@@ -158,7 +176,13 @@ impl IntoResponse for AppError {
             )
                 .into_response(),
             _ => (status, body).into_response(),
+        };
+        if let Some(secs) = retry_after {
+            response
+                .headers_mut()
+                .insert(header::RETRY_AFTER, HeaderValue::from(secs));
         }
+        response
     }
 }
 
@@ -206,7 +230,10 @@ impl From<InvalidId> for AppError {
 
 impl From<StoreError> for AppError {
     fn from(e: StoreError) -> Self {
-        AppError::Internal(e.to_string())
+        match e {
+            StoreError::Unavailable(_) => AppError::StoreUnavailable(e.to_string()),
+            e => AppError::Internal(e.to_string()),
+        }
     }
 }
 

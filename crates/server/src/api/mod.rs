@@ -10,6 +10,7 @@ pub mod duplicates;
 pub mod error;
 pub mod evidence;
 mod files;
+pub mod follow;
 mod metrics;
 mod models;
 mod ops;
@@ -94,6 +95,9 @@ pub struct App {
     queries: std::sync::Mutex<lru::LruCache<String, (Extent, Arc<Signature>)>>,
     /// Called on the ranking thread while it holds its catalogue snapshot (tests).
     ranking_hook: Option<Hook>,
+    /// Called, on a blocking thread, before an upload that rejects duplicates takes the locks
+    /// its check runs under (tests).
+    duplicate_hook: Option<Hook>,
     /// Meshes and verdicts of the near-duplicate check.
     verifier: duplicates::Verifier,
     /// Pairs an operator said are not duplicates.
@@ -103,6 +107,9 @@ pub struct App {
     duplicate_gate: tokio::sync::Mutex<()>,
     /// The models whose patches are still to be made.
     patcher: patches::Patcher,
+    /// How far the catalogue follows a store shared with other replicas (none for a store
+    /// of its own).
+    follower: Option<follow::Follower>,
 }
 
 /// Starting the service failed.
@@ -196,6 +203,11 @@ impl App {
         if keys.is_empty() && !config.addr.ip().is_loopback() && !config.allow_anonymous {
             return Err(StartError::Anonymous(config.addr));
         }
+        // Read before loading: what is committed meanwhile is applied again after.
+        let follower = match store.shared() {
+            Some(shared) => Some(follow::Follower::new(shared.head()?)),
+            None => None,
+        };
         let (snapshot, stale_parameters, missing_descriptor) = load(&config, store.as_ref())?;
         pool::release_free_memory();
         let models = snapshot.records.len();
@@ -235,10 +247,12 @@ impl App {
                 .map(|n| governor::RateLimiter::keyed(governor::Quota::per_minute(n))),
             queries: std::sync::Mutex::new(lru::LruCache::new(RECENT_QUERIES)),
             ranking_hook: None,
+            duplicate_hook: None,
             verifier: duplicates::Verifier::default(),
             dismissed,
             duplicate_gate: tokio::sync::Mutex::new(()),
             patcher,
+            follower,
         })
     }
 
@@ -256,6 +270,11 @@ impl App {
         self.ranking_hook = Some(hook);
     }
 
+    /// Sets the hook called before an upload's duplicate check takes its locks (tests).
+    pub fn set_duplicate_hook(&mut self, hook: Hook) {
+        self.duplicate_hook = Some(hook);
+    }
+
     /// Starts the background work the store calls for: a re-extraction left unfinished by
     /// the last run, or one of the stale signatures found at start (unless
     /// `reindex_on_start` is off); and the patches of every model without them
@@ -266,6 +285,7 @@ impl App {
             reindex::start(self);
         }
         patches::start(self);
+        follow::start(self);
     }
 
     /// How many models' patches are still to be made (`None` before the start's count).
@@ -394,6 +414,24 @@ impl App {
         .await
         .map_err(|e| AppError::Internal(format!("store task failed: {e}")))?
         .map_err(AppError::from)
+    }
+
+    /// Holds the lock `name` across every replica of a shared store, and catches this one up
+    /// to what the others committed before it: a check-then-write that must see every
+    /// replica's writes runs under it. A store of its own needs none (`None`): the caller's
+    /// lock in this process suffices. Never called under [`App::writes`], which catching up
+    /// takes.
+    async fn hold_shared(
+        self: &Arc<Self>,
+        name: &'static str,
+    ) -> Result<Option<Box<dyn Send>>, AppError> {
+        let lock = self
+            .with_store(move |store| store.shared().map(|s| s.lock(name)).transpose())
+            .await?;
+        if lock.is_some() {
+            follow::catch_up(self).await?;
+        }
+        Ok(lock)
     }
 
     /// Lowers the priority of extraction ([`Config::extraction_nice`]) and of the background
@@ -577,10 +615,19 @@ pub fn app(state: AppState) -> Router {
         ),
     }
     .allow_methods([Method::GET, Method::POST, Method::PATCH, Method::DELETE])
-    .allow_headers([header::AUTHORIZATION, header::CONTENT_TYPE]);
+    .allow_headers([
+        header::AUTHORIZATION,
+        header::CONTENT_TYPE,
+        follow::POSITION_HEADER,
+    ])
+    .expose_headers([follow::POSITION_HEADER]);
     let request_id = HeaderName::from_static("x-request-id");
     router
         .layer(DefaultBodyLimit::max(config.max_body_bytes))
+        .layer(middleware::from_fn_with_state(
+            state.clone(),
+            follow::read_your_writes,
+        ))
         .layer(middleware::from_fn_with_state(
             (state.clone(), Arc::new(access)),
             authorize,

@@ -103,7 +103,13 @@ pub async fn add_model(
     let _gate = match q.on_duplicate.unwrap_or_default() {
         OnDuplicate::Allow => None,
         OnDuplicate::Reject => {
+            if let Some(hook) = app.duplicate_hook.clone() {
+                tokio::task::spawn_blocking(move || hook())
+                    .await
+                    .map_err(|e| AppError::Internal(format!("duplicate hook failed: {e}")))?;
+            }
             let gate = app.duplicate_gate.lock().await;
+            let across = app.hold_shared("on_duplicate").await?;
             let found =
                 duplicates_of(&app, upload.clone(), signature, Some(record.id.clone())).await?;
             if let Some(first) = found
@@ -112,7 +118,7 @@ pub async fn add_model(
             {
                 return Err(AppError::Duplicate(first));
             }
-            Some(gate)
+            Some((gate, across))
         }
     };
     let _write = app.writes.lock().await;
@@ -341,6 +347,8 @@ pub async fn patch_model(
     // Through a JSON object: serde would also read a struct from an array, by position.
     let patch: ModelPatch = serde_json::from_value(serde_json::Value::Object(body))
         .map_err(|e| AppError::bad_request("invalid_json", e.to_string()))?;
+    // Another replica's edit of the same model is seen and not overwritten.
+    let _across = app.hold_shared("model_edits").await?;
     let _write = app.writes.lock().await;
     let Some(mut record) = app
         .catalog

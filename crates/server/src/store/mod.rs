@@ -106,6 +106,44 @@ pub struct Loaded {
     pub signature: Vec<u8>,
 }
 
+/// What changed at a position of a shared store's log ([`Shared`]).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Change {
+    /// A model was stored, re-described or deleted: read it again.
+    Model(ModelId),
+    /// A [`Store::set_state`] key was written.
+    State(String),
+}
+
+/// Changes read from a shared store's log ([`Shared::changes_after`]).
+#[derive(Debug)]
+pub enum Changes {
+    /// The next changes in commit order, each with its position (none when caught up).
+    Next(Vec<(u64, Change)>),
+    /// The log no longer holds the change after the position asked for (it was trimmed):
+    /// the reader must load the whole store again.
+    Trimmed,
+}
+
+/// What a store shared by several processes offers beyond [`Store`] (#37), and sled never
+/// needed: the log of changes in commit order that replicas follow to stay in step, and
+/// locks that hold across processes.
+pub trait Shared: Send + Sync {
+    /// The position of the last committed change (0 for none).
+    fn head(&self) -> StoreResult<u64>;
+    /// At most `limit` changes after `position`, in commit order.
+    fn changes_after(&self, position: u64, limit: usize) -> StoreResult<Changes>;
+    /// Told, with the position when known, each time a change may have been committed since
+    /// (a notification, or a reconnection after which some may have been missed).
+    fn subscribe(&self) -> tokio::sync::watch::Receiver<u64>;
+    /// The position of the last change this process committed (0 for none).
+    fn written(&self) -> u64;
+    /// Removes changes older than `age` from the log (not the last one).
+    fn trim(&self, age: std::time::Duration) -> StoreResult<u64>;
+    /// Holds the lock `name` for every process on the store until the guard is dropped.
+    fn lock(&self, name: &str) -> StoreResult<Box<dyn Send>>;
+}
+
 /// The storage operations the service uses.
 pub trait Store: Send + Sync {
     /// Adds or replaces `record.id` with its signature and files, atomically and durably.
@@ -134,6 +172,15 @@ pub trait Store: Send + Sync {
                 })
             })
             .transpose()
+    }
+    /// A model's record and signature, as one read where the backend can.
+    fn model(&self, id: &str) -> StoreResult<Option<Loaded>> {
+        let Some(record) = self.get(id)? else {
+            return Ok(None);
+        };
+        Ok(self
+            .signature(id)?
+            .map(|signature| Loaded { record, signature }))
     }
     /// The original upload of a model, for re-extraction.
     fn upload(&self, id: &str) -> StoreResult<Option<Upload>>;
@@ -173,4 +220,8 @@ pub trait Store: Send + Sync {
     /// A small value the service keeps between runs (the progress of a re-extraction).
     fn state(&self, key: &str) -> StoreResult<Option<Vec<u8>>>;
     fn set_state(&self, key: &str, value: &[u8]) -> StoreResult<()>;
+    /// The log and locks of a store that other processes share, if it is one.
+    fn shared(&self) -> Option<&dyn Shared> {
+        None
+    }
 }

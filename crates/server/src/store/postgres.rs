@@ -10,11 +10,17 @@
 //! The schema is `migrations/postgres/` (refinery), applied at open under an advisory lock so
 //! that replicas starting together migrate once; a database migrated by a newer salient is
 //! refused, as sled's store is.
+//!
+//! Replicas stay in step through a change log ([`Shared`]): every writing transaction takes
+//! the next position from one locked row as its last statement, so positions follow commit
+//! order, and notifies the others (`LISTEN salient_changes`), which read on from the last
+//! position they applied.
 
 use std::collections::BTreeMap;
 use std::future::Future;
 use std::pin::Pin;
 use std::str::FromStr;
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Arc;
 use std::time::Duration;
 
@@ -22,9 +28,12 @@ use bytes::{Bytes, BytesMut};
 use deadpool_postgres::{Manager, ManagerConfig, Pool, RecyclingMethod, Runtime, Timeouts};
 use tokio_postgres::config::{Host, SslMode};
 use tokio_postgres::error::SqlState;
-use tokio_postgres::{NoTls, Transaction};
+use tokio_postgres::tls::{MakeTlsConnect, TlsConnect};
+use tokio_postgres::{AsyncMessage, NoTls, Socket, Transaction};
 
-use super::{blob_hashes, upload_files, Derived, Loaded, StoreError, StoreResult};
+use super::{
+    blob_hashes, upload_files, Change, Changes, Derived, Loaded, Shared, StoreError, StoreResult,
+};
 use crate::model::{ModelId, ModelRecord, Upload};
 
 mod embedded {
@@ -44,10 +53,18 @@ const PAGE: i64 = 256;
 const MIGRATION_LOCK: i64 = 0x5a11_e470;
 /// A transaction that deadlocked or lost a serialisation race is run again up to this often.
 const ATTEMPTS: usize = 4;
+/// The channel a committed change is announced on, with its position.
+const CHANNEL: &str = "salient_changes";
+/// How long the listener waits before connecting again after it lost its connection.
+const RECONNECT: Duration = Duration::from_secs(1);
 
 /// A PostgreSQL database holding a salient catalogue.
 pub struct PostgresStore {
     pool: Pool,
+    /// The last position announced on [`CHANNEL`] (changed, too, after each reconnection).
+    notified: Arc<tokio::sync::watch::Sender<u64>>,
+    /// The last position this process committed.
+    written: Arc<AtomicU64>,
     /// The runtime the client runs on; shut down without waiting when the store is dropped
     /// (dropping a runtime from inside another one would panic).
     runtime: Option<tokio::runtime::Runtime>,
@@ -148,7 +165,9 @@ impl PostgresStore {
             .get_hosts()
             .iter()
             .all(|host| !matches!(host, Host::Tcp(_)));
+        let notified = Arc::new(tokio::sync::watch::Sender::new(0));
         let manager = if local || config.get_ssl_mode() == SslMode::Disable {
+            runtime.spawn(listen(config.clone(), NoTls, notified.clone()));
             Manager::from_config(config, NoTls, manager_config)
         } else {
             let roots =
@@ -160,11 +179,9 @@ impl PostgresStore {
             .map_err(|e| StoreError::Config(e.to_string()))?
             .with_root_certificates(roots)
             .with_no_client_auth();
-            Manager::from_config(
-                config,
-                tokio_postgres_rustls::MakeRustlsConnect::new(tls),
-                manager_config,
-            )
+            let tls = tokio_postgres_rustls::MakeRustlsConnect::new(tls);
+            runtime.spawn(listen(config.clone(), tls.clone(), notified.clone()));
+            Manager::from_config(config, tls, manager_config)
         };
         let pool = {
             let _entered = runtime.enter();
@@ -181,6 +198,8 @@ impl PostgresStore {
         };
         let store = Self {
             pool,
+            notified,
+            written: Arc::new(AtomicU64::new(0)),
             runtime: Some(runtime),
         };
         store.run(|pool| async move { migrate(&pool).await })?;
@@ -207,12 +226,17 @@ impl PostgresStore {
     }
 
     /// Runs `work` in one transaction, committed before this returns; again (from the start)
-    /// when it deadlocked with another writer.
+    /// when it deadlocked with another writer. The change `work` reports, if any, is logged
+    /// in the same transaction ([`log_change`]).
     fn transaction<T, W>(&self, work: W) -> StoreResult<T>
     where
         T: Send + 'static,
-        W: for<'a> Fn(&'a Transaction<'a>) -> TxFuture<'a, T> + Send + Sync + 'static,
+        W: for<'a> Fn(&'a Transaction<'a>) -> TxFuture<'a, (T, Option<Change>)>
+            + Send
+            + Sync
+            + 'static,
     {
+        let written = self.written.clone();
         self.run(|pool| async move {
             let mut attempt = 0;
             loop {
@@ -220,8 +244,15 @@ impl PostgresStore {
                 let result = async {
                     let mut client = pool.get().await.map_err(pool_error)?;
                     let tx = client.transaction().await.map_err(backend)?;
-                    let value = work(&tx).await?;
+                    let (value, change) = work(&tx).await?;
+                    let position = match change {
+                        Some(change) => Some(log_change(&tx, &change).await?),
+                        None => None,
+                    };
                     tx.commit().await.map_err(backend)?;
+                    if let Some(position) = position {
+                        written.fetch_max(position, Ordering::AcqRel);
+                    }
                     Ok(value)
                 }
                 .await;
@@ -267,6 +298,85 @@ impl Param {
 
 /// The work of one transaction ([`PostgresStore::transaction`]), borrowing it.
 type TxFuture<'a, T> = Pin<Box<dyn Future<Output = StoreResult<T>> + Send + 'a>>;
+
+/// Keeps a connection that listens on [`CHANNEL`] and tells `notified` of each position
+/// announced, connecting again whenever it is lost; after each (re)connection it tells
+/// `notified` too, since changes committed meanwhile were announced to nobody.
+async fn listen<T>(
+    mut config: tokio_postgres::Config,
+    tls: T,
+    notified: Arc<tokio::sync::watch::Sender<u64>>,
+) where
+    T: MakeTlsConnect<Socket> + Clone + Send + 'static,
+    T::Stream: Send + 'static,
+    T::TlsConnect: Send,
+    <T::TlsConnect as TlsConnect<Socket>>::Future: Send,
+{
+    config.connect_timeout(WAIT);
+    loop {
+        if let Ok((client, mut connection)) = config.connect(tls.clone()).await {
+            let announced = notified.clone();
+            let messages = tokio::spawn(async move {
+                while let Some(Ok(message)) =
+                    std::future::poll_fn(|cx| connection.poll_message(cx)).await
+                {
+                    if let AsyncMessage::Notification(n) = message {
+                        if let Ok(position) = n.payload().parse::<u64>() {
+                            announced.send_modify(|last| *last = (*last).max(position));
+                        }
+                    }
+                }
+            });
+            if client
+                .batch_execute(&format!("LISTEN {CHANNEL}"))
+                .await
+                .is_ok()
+            {
+                notified.send_modify(|_| {});
+                // Until the connection ends; the client is kept open meanwhile.
+                let _ = messages.await;
+            } else {
+                messages.abort();
+            }
+        }
+        tokio::time::sleep(RECONNECT).await;
+    }
+}
+
+/// Logs `change` at the next position, announces it on [`CHANNEL`] (delivered at commit)
+/// and returns the position. Taking the position locks `change_head` until the transaction
+/// ends, so positions are handed out in commit order; it comes last, to hold that lock for
+/// as short a time as it can.
+async fn log_change(tx: &Transaction<'_>, change: &Change) -> StoreResult<u64> {
+    let position: i64 = tx
+        .query_one(
+            "UPDATE change_head SET position = position + 1 RETURNING position",
+            &[],
+        )
+        .await
+        .map_err(backend)?
+        .get(0);
+    let (model, state) = match change {
+        Change::Model(id) => (Some(id.as_str()), None),
+        Change::State(key) => (None, Some(key.as_str())),
+    };
+    tx.execute(
+        "INSERT INTO changes (position, model_id, state_key) VALUES ($1, $2, $3)",
+        &[&position, &model, &state],
+    )
+    .await
+    .map_err(backend)?;
+    tx.execute(
+        "SELECT pg_notify($1, $2)",
+        &[&CHANNEL, &position.to_string()],
+    )
+    .await
+    .map_err(backend)?;
+    u64::try_from(position).map_err(|_| StoreError::Corrupt {
+        key: "change_head".to_string(),
+        message: format!("position {position}"),
+    })
+}
 
 /// Applies the migrations this binary has and the database lacks, under an advisory lock;
 /// refuses a database a newer salient migrated.
@@ -489,32 +599,36 @@ impl super::Store for PostgresStore {
                 )
                 .await
                 .map_err(backend)?;
-                Ok(previous)
+                Ok((previous, Some(Change::Model(record.id.clone()))))
             })
         })
     }
 
     fn update_model(&self, record: &ModelRecord, signature: &[u8]) -> StoreResult<bool> {
-        let encoded = serde_json::to_string(record).expect("records serialise");
-        let rows = self.run({
-            let (id, hash, signature) = (
-                record.id.as_str().to_string(),
-                record.content_hash.clone(),
-                signature.to_vec(),
-            );
-            |pool| async move {
-                let client = pool.get().await.map_err(pool_error)?;
-                client
+        let encoded: Arc<str> = serde_json::to_string(record)
+            .expect("records serialise")
+            .into();
+        let (id, hash, signature): (ModelId, Arc<str>, Arc<[u8]>) = (
+            record.id.clone(),
+            record.content_hash.as_str().into(),
+            signature.into(),
+        );
+        self.transaction(move |tx| {
+            let (id, hash, signature, encoded) =
+                (id.clone(), hash.clone(), signature.clone(), encoded.clone());
+            Box::pin(async move {
+                let rows = tx
                     .execute(
                         "UPDATE models SET record = $3::text::jsonb, signature = $4 \
                          WHERE id = $1 AND content_hash = $2",
-                        &[&id, &hash, &encoded, &signature],
+                        &[&id.as_str(), &&*hash, &&*encoded, &&*signature],
                     )
                     .await
-                    .map_err(backend)
-            }
-        })?;
-        Ok(rows == 1)
+                    .map_err(backend)?;
+                let updated = rows == 1;
+                Ok((updated, updated.then_some(Change::Model(id))))
+            })
+        })
     }
 
     fn get(&self, id: &str) -> StoreResult<Option<ModelRecord>> {
@@ -533,6 +647,21 @@ impl super::Store for PostgresStore {
             vec![Param::Text(id.to_string())],
         )?;
         Ok(rows.first().map(|row| row.get(0)))
+    }
+
+    fn model(&self, id: &str) -> StoreResult<Option<Loaded>> {
+        let rows = self.query(
+            "SELECT record::text, signature FROM models WHERE id = $1",
+            vec![Param::Text(id.to_string())],
+        )?;
+        rows.first()
+            .map(|row| {
+                Ok(Loaded {
+                    record: decode_record(id, row.get(0))?,
+                    signature: row.get(1),
+                })
+            })
+            .transpose()
     }
 
     fn upload(&self, id: &str) -> StoreResult<Option<Upload>> {
@@ -567,7 +696,7 @@ impl super::Store for PostgresStore {
             let id = id.clone();
             Box::pin(async move {
                 let Some(old) = locked_record(tx, &id).await? else {
-                    return Ok(None);
+                    return Ok((None, None));
                 };
                 let mut deltas = BTreeMap::new();
                 unlink(tx, &old, &mut deltas).await?;
@@ -575,7 +704,8 @@ impl super::Store for PostgresStore {
                     .await
                     .map_err(backend)?;
                 change_refs(tx, &deltas, &BTreeMap::new()).await?;
-                Ok(Some(old))
+                let change = Change::Model(old.id.clone());
+                Ok((Some(old), Some(change)))
             })
         })
     }
@@ -702,12 +832,138 @@ impl super::Store for PostgresStore {
     }
 
     fn set_state(&self, key: &str, value: &[u8]) -> StoreResult<()> {
-        self.query(
-            "INSERT INTO state (key, value) VALUES ($1, $2) \
-             ON CONFLICT (key) DO UPDATE SET value = EXCLUDED.value RETURNING 1",
-            vec![Param::Text(key.to_string()), Param::Bytes(value.to_vec())],
+        let (key, value): (Arc<str>, Arc<[u8]>) = (key.into(), value.into());
+        self.transaction(move |tx| {
+            let (key, value) = (key.clone(), value.clone());
+            Box::pin(async move {
+                tx.execute(
+                    "INSERT INTO state (key, value) VALUES ($1, $2) \
+                     ON CONFLICT (key) DO UPDATE SET value = EXCLUDED.value",
+                    &[&&*key, &&*value],
+                )
+                .await
+                .map_err(backend)?;
+                Ok(((), Some(Change::State(key.to_string()))))
+            })
+        })
+    }
+
+    fn shared(&self) -> Option<&dyn Shared> {
+        Some(self)
+    }
+}
+
+impl Shared for PostgresStore {
+    fn head(&self) -> StoreResult<u64> {
+        let rows = self.query("SELECT position FROM change_head", Vec::new())?;
+        let position: i64 = rows.first().map_or(0, |row| row.get(0));
+        Ok(u64::try_from(position).unwrap_or(0))
+    }
+
+    fn changes_after(&self, position: u64, limit: usize) -> StoreResult<Changes> {
+        let rows = self.query(
+            "SELECT position, model_id, state_key FROM changes \
+             WHERE position > $1 ORDER BY position LIMIT $2",
+            vec![
+                Param::Int(i64::try_from(position).unwrap_or(i64::MAX)),
+                Param::Int(i64::try_from(limit).unwrap_or(i64::MAX)),
+            ],
         )?;
-        Ok(())
+        let mut changes = Vec::with_capacity(rows.len());
+        for row in &rows {
+            let at = u64::try_from(row.get::<_, i64>(0)).unwrap_or(0);
+            // Positions have no gaps (each is taken in the transaction that logs it): one
+            // missing was trimmed.
+            if at != position + changes.len() as u64 + 1 {
+                return Ok(Changes::Trimmed);
+            }
+            let change = match (row.get::<_, Option<&str>>(1), row.get::<_, Option<&str>>(2)) {
+                (Some(id), _) => Change::Model(parse_id(id)?),
+                (None, Some(key)) => Change::State(key.to_string()),
+                (None, None) => {
+                    return Err(StoreError::Corrupt {
+                        key: format!("change {at}"),
+                        message: "names neither a model nor a state key".to_string(),
+                    })
+                }
+            };
+            changes.push((at, change));
+        }
+        Ok(Changes::Next(changes))
+    }
+
+    fn subscribe(&self) -> tokio::sync::watch::Receiver<u64> {
+        self.notified.subscribe()
+    }
+
+    fn written(&self) -> u64 {
+        self.written.load(Ordering::Acquire)
+    }
+
+    fn trim(&self, age: Duration) -> StoreResult<u64> {
+        let rows = self.query(
+            "WITH gone AS (DELETE FROM changes \
+             WHERE at < now() - make_interval(secs => $1::bigint) \
+             AND position < (SELECT position FROM change_head) RETURNING 1) \
+             SELECT count(*) FROM gone",
+            vec![Param::Int(i64::try_from(age.as_secs()).unwrap_or(i64::MAX))],
+        )?;
+        Ok(rows
+            .first()
+            .map_or(0, |row| u64::try_from(row.get::<_, i64>(0)).unwrap_or(0)))
+    }
+
+    fn lock(&self, name: &str) -> StoreResult<Box<dyn Send>> {
+        let key = advisory_key(name);
+        let client = self.run(|pool| async move {
+            let client = pool.get().await.map_err(pool_error)?;
+            client
+                .execute("SELECT pg_advisory_lock($1)", &[&key])
+                .await
+                .map_err(backend)?;
+            Ok(client)
+        })?;
+        Ok(Box::new(AdvisoryLock {
+            client: Some(client),
+            key,
+            runtime: self
+                .runtime
+                .as_ref()
+                .expect("present until dropped")
+                .handle()
+                .clone(),
+        }))
+    }
+}
+
+/// The advisory lock key of a lock's name: the first 8 bytes of its SHA-256.
+fn advisory_key(name: &str) -> i64 {
+    let hash = crate::model::sha256_hex(name.as_bytes());
+    u64::from_str_radix(&hash[..16], 16).map_or(0, |k| k as i64)
+}
+
+/// A session advisory lock, held on its connection until dropped.
+struct AdvisoryLock {
+    client: Option<deadpool_postgres::Object>,
+    key: i64,
+    runtime: tokio::runtime::Handle,
+}
+
+impl Drop for AdvisoryLock {
+    fn drop(&mut self) {
+        let (Some(client), key) = (self.client.take(), self.key) else {
+            return;
+        };
+        self.runtime.spawn(async move {
+            let unlocked = client
+                .query_one("SELECT pg_advisory_unlock($1)", &[&key])
+                .await
+                .is_ok_and(|row| row.get::<_, bool>(0));
+            if !unlocked {
+                // Closing the session releases whatever it holds; the pool makes another.
+                drop(deadpool_postgres::Object::take(client));
+            }
+        });
     }
 }
 

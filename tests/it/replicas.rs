@@ -1,0 +1,239 @@
+//! Replicas on one PostgreSQL database (#37): each keeps its own catalogue in memory and
+//! follows the others' writes through the store's change log, in commit order.
+
+use std::collections::BTreeSet;
+use std::sync::Arc;
+use std::time::Duration;
+
+use axum::http::StatusCode;
+use salient_core::mesh::write::Export;
+use salient_server::api::{follow, App, Config};
+use salient_server::store::{Change, Changes, PostgresStore, Store};
+use serde_json::Value;
+
+use crate::app::{TestApp, TestResponse};
+use crate::duplicates::{file, model, remeshed, rescaled};
+use crate::server::obj;
+use crate::shapes;
+use crate::stores::fresh_database_url;
+
+/// A replica, in process, on the database `url`, following the others' writes; `set_up`
+/// may change it before it serves.
+fn replica(url: &str, set_up: impl FnOnce(&mut App)) -> TestApp {
+    let store = PostgresStore::open(url).expect("the test database opens");
+    let mut app = App::new(Config::default(), Arc::new(store)).expect("the service starts");
+    set_up(&mut app);
+    let app = TestApp::serving(app);
+    follow::start(&app.app);
+    app
+}
+
+/// Two replicas on one new database.
+fn two_replicas() -> (TestApp, TestApp) {
+    let url = fresh_database_url();
+    (replica(&url, |_| {}), replica(&url, |_| {}))
+}
+
+/// The change position a write's response carries.
+fn position(response: &TestResponse) -> String {
+    response
+        .headers()
+        .get("salient-position")
+        .expect("a write's response carries its position")
+        .to_str()
+        .unwrap()
+        .to_string()
+}
+
+/// Distinct small shapes, by id.
+fn meshes(prefix: &str, radii: &[f64]) -> Vec<(String, Vec<u8>)> {
+    radii
+        .iter()
+        .enumerate()
+        .map(|(i, &r)| (format!("{prefix}{i}"), obj(&shapes::tube(r, 20, 16))))
+        .collect()
+}
+
+/// Adds each mesh in turn; returns each id with the position of its write.
+async fn add_all(app: &TestApp, meshes: &[(String, Vec<u8>)]) -> Vec<(String, String)> {
+    let mut written = Vec::new();
+    for (id, bytes) in meshes {
+        let response = app
+            .add(&format!("id={id}"), "model/obj", bytes.clone())
+            .await;
+        assert_eq!(response.status(), StatusCode::CREATED, "{id}");
+        written.push((id.clone(), position(&response)));
+    }
+    written
+}
+
+async fn read_at(app: &TestApp, path: &str, at: &str) -> TestResponse {
+    app.get(path).header("salient-position", at).send().await
+}
+
+postgres_only! {
+    /// Writers on two replicas at once: each replica answers a read that carries another's
+    /// write position with that write, and both end with the same catalogue and rankings.
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn replicas_on_one_database_serve_each_others_writes() {
+        let (a, b) = two_replicas();
+        let (on_a, on_b) = (
+            meshes("a", &[0.2, 0.3, 0.4]),
+            meshes("b", &[0.25, 0.35, 0.45]),
+        );
+        let (written_a, written_b) = tokio::join!(add_all(&a, &on_a), add_all(&b, &on_b));
+        for ((id, at), other) in written_a
+            .iter()
+            .map(|w| (w, &b))
+            .chain(written_b.iter().map(|w| (w, &a)))
+        {
+            let response = read_at(other, &format!("/v1/models/{id}"), at).await;
+            assert_eq!(response.status(), StatusCode::OK, "{id} at {at}");
+        }
+        let expected: BTreeSet<String> = on_a.iter().chain(&on_b).map(|(id, _)| id.clone()).collect();
+        assert_eq!(a.listed_ids().await, expected);
+        assert_eq!(b.listed_ids().await, expected);
+        let last = written_a.iter().chain(&written_b).map(|(_, at)| at.parse::<u64>().unwrap()).max().unwrap().to_string();
+        let mut ranked = Vec::new();
+        for app in [&a, &b] {
+            let response = read_at(app, "/v1/models/a0/similar?k=5", &last).await;
+            assert_eq!(response.status(), StatusCode::OK);
+            ranked.push(response.json()["results"].clone());
+        }
+        let [ranked_a, ranked_b] = <[Value; 2]>::try_from(ranked).unwrap();
+        assert_eq!(ranked_a.as_array().unwrap().len(), 5, "{ranked_a}");
+        assert_eq!(ranked_a, ranked_b);
+
+        // An edit and a delete on one replica are seen by the other.
+        let edited = a
+            .request_with_method("PATCH", "/v1/models/b1")
+            .header("content-type", "application/json")
+            .body(r#"{"tags": ["edited"]}"#)
+            .send()
+            .await;
+        assert_eq!(edited.status(), StatusCode::OK);
+        let record = read_at(&b, "/v1/models/b1", &position(&edited)).await.json();
+        assert_eq!(record["tags"], serde_json::json!(["edited"]));
+        let deleted = b.delete("/v1/models/a2").send().await;
+        assert_eq!(deleted.status(), StatusCode::NO_CONTENT);
+        let gone = read_at(&a, "/v1/models/a2", &position(&deleted)).await;
+        assert_eq!(gone.status(), StatusCode::NOT_FOUND);
+        let tagged = read_at(&a, "/v1/models/a0/similar?k=5&tag=edited", &position(&deleted)).await.json();
+        let ids: Vec<&Value> = tagged["results"].as_array().unwrap().iter().map(|r| &r["id"]).collect();
+        assert_eq!(ids, [&serde_json::json!("b1")], "{tagged}");
+    }
+}
+
+postgres_only! {
+    /// Two disguised copies of one model sent to two replicas at once with
+    /// `on_duplicate=reject`: one is stored, the other refused as its duplicate.
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn a_duplicate_is_rejected_across_replicas_even_when_sent_at_once() {
+        // Both uploads extracted before either checks: without a lock across replicas,
+        // both checks would find nothing.
+        let both = Arc::new(std::sync::Barrier::new(2));
+        let url = fresh_database_url();
+        let [a, b] = [(); 2].map(|()| {
+            let both = both.clone();
+            replica(&url, |app| app.set_duplicate_hook(Arc::new(move || {
+                both.wait();
+            })))
+        });
+        let (inches, _) = file(&rescaled(&model()), Export::Glb);
+        let (remeshed, _) = file(&remeshed(&model()), Export::BinaryStl);
+        let (on_a, on_b) = tokio::join!(
+            a.add("id=inches&on_duplicate=reject", "model/gltf-binary", inches),
+            b.add("id=remeshed&on_duplicate=reject", "model/stl", remeshed),
+        );
+        let mut statuses = [on_a.status(), on_b.status()];
+        statuses.sort();
+        assert_eq!(statuses, [StatusCode::CREATED, StatusCode::CONFLICT]);
+        let refused = if on_a.status() == StatusCode::CONFLICT { &on_a } else { &on_b };
+        assert_eq!(refused.json()["error"]["code"], "duplicate");
+        let kept = if on_a.status() == StatusCode::CREATED { "inches" } else { "remeshed" };
+        assert_eq!(refused.json()["error"]["duplicate"]["id"], kept);
+    }
+}
+
+postgres_only! {
+    /// Two processes' writers racing: a reader of the log never sees a later change before
+    /// an earlier one (a gap would read as a trimmed log), and every position is there once.
+    #[test]
+    fn the_change_log_is_read_in_commit_order_while_writers_race() {
+        let url = fresh_database_url();
+        let (one, two, reader) = (
+            PostgresStore::open(&url).unwrap(),
+            PostgresStore::open(&url).unwrap(),
+            PostgresStore::open(&url).unwrap(),
+        );
+        const EACH: u64 = 60;
+        let shared = reader.shared().unwrap();
+        let read = std::thread::scope(|scope| {
+            for (n, store) in [&one, &two].into_iter().enumerate() {
+                scope.spawn(move || {
+                    for i in 0..EACH {
+                        store.set_state(&format!("writer{n}"), &i.to_le_bytes()).unwrap();
+                    }
+                });
+            }
+            let mut read = Vec::new();
+            while (read.len() as u64) < 2 * EACH {
+                match shared.changes_after(read.len() as u64, 7).unwrap() {
+                    Changes::Next(changes) => read.extend(changes),
+                    Changes::Trimmed => panic!("a gap after position {}", read.len()),
+                }
+            }
+            read
+        });
+        let positions: Vec<u64> = read.iter().map(|(p, _)| *p).collect();
+        assert_eq!(positions, (1..=2 * EACH).collect::<Vec<_>>());
+        let by_two = read.iter().filter(|(_, c)| *c == Change::State("writer1".into())).count();
+        assert_eq!(by_two as u64, EACH);
+        assert_eq!(shared.head().unwrap(), 2 * EACH);
+    }
+}
+
+postgres_only! {
+    /// A replica away for longer than the log keeps (trimmed) loads the store again.
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn a_replica_behind_the_trimmed_log_loads_the_store_again() {
+        let url = fresh_database_url();
+        let a = replica(&url, |_| {});
+        // Not following: it stays where it started until told to catch up.
+        let b = TestApp::build(Config::default(), Arc::new(PostgresStore::open(&url).unwrap()), None);
+        add_all(&a, &meshes("m", &[0.2, 0.3])).await;
+        assert_eq!(a.delete("/v1/models/m0").send().await.status(), StatusCode::NO_CONTENT);
+        add_all(&a, &meshes("n", &[0.4])).await;
+        let store = PostgresStore::open(&url).unwrap();
+        assert!(store.shared().unwrap().trim(Duration::ZERO).unwrap() >= 3);
+        assert!(matches!(store.shared().unwrap().changes_after(0, 10).unwrap(), Changes::Trimmed));
+        follow::catch_up(&b.app).await.unwrap();
+        let expected: BTreeSet<String> = ["m1", "n0"].map(String::from).into();
+        assert_eq!(b.listed_ids().await, expected);
+    }
+}
+
+postgres_only! {
+    /// A replica that has not applied the position a request carries in time answers 503
+    /// with `Retry-After`, not a stale answer.
+    #[tokio::test]
+    async fn a_request_for_a_position_not_yet_applied_is_answered_503() {
+        let app = replica(&fresh_database_url(), |app| app.config.position_wait_ms = 20);
+        let response = read_at(&app, "/v1/models", "1000").await;
+        assert_eq!(response.status(), StatusCode::SERVICE_UNAVAILABLE);
+        assert_eq!(response.json()["error"]["code"], "behind");
+        assert_eq!(response.headers()["retry-after"], "1");
+    }
+}
+
+/// On a store of its own everything written is applied: the position is accepted and not
+/// waited for; one that is not a position is refused.
+#[tokio::test]
+async fn a_position_on_a_store_of_its_own_is_checked_and_not_waited_for() {
+    let app = TestApp::new();
+    let response = read_at(&app, "/v1/models", "1000").await;
+    assert_eq!(response.status(), StatusCode::OK);
+    let response = read_at(&app, "/v1/models", "soon").await;
+    assert_eq!(response.status(), StatusCode::BAD_REQUEST);
+    assert_eq!(response.json()["error"]["code"], "invalid_position");
+}
