@@ -15,7 +15,7 @@ use crate::app::{TestApp, TestResponse};
 use crate::duplicates::{file, model, remeshed, rescaled};
 use crate::server::obj;
 use crate::shapes;
-use crate::stores::fresh_database_url;
+use crate::stores::{fresh_database_url, OwnServer};
 
 /// A replica, in process, on the database `url`, following the others' writes; `set_up`
 /// may change it before it serves.
@@ -236,4 +236,64 @@ async fn a_position_on_a_store_of_its_own_is_checked_and_not_waited_for() {
     let response = read_at(&app, "/v1/models", "soon").await;
     assert_eq!(response.status(), StatusCode::BAD_REQUEST);
     assert_eq!(response.json()["error"]["code"], "invalid_position");
+}
+
+postgres_only! {
+    /// PostgreSQL stopped under two replicas: they still list, read records and rank uploads
+    /// from memory, refuse a write (and `similar`, which reads the stored model's signature)
+    /// with 503 and `Retry-After`, and say so on `/readyz`, which stays 200 (a balancer keeps
+    /// them). Once it is back they reconnect, and a write on one is served by the other.
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn replicas_rank_while_postgres_is_down_and_follow_again_when_it_is_back() {
+        let mut server = OwnServer::start();
+        let stores =
+            [(); 2].map(|()| Arc::new(PostgresStore::open(server.url()).expect("it opens")));
+        let [a, b] = stores.clone().map(|store| {
+            let app = TestApp::serving(App::new(Config::default(), store).unwrap());
+            follow::start(&app.app);
+            app
+        });
+        let written = add_all(&a, &meshes("m", &[0.2, 0.3])).await;
+        let seen = read_at(&b, "/v1/models/m1", &written[1].1).await;
+        assert_eq!(seen.status(), StatusCode::OK);
+
+        server.stop();
+        for store in &stores {
+            let mut up = store.shared().unwrap().connected();
+            up.wait_for(|up| !up).await.unwrap();
+        }
+        for app in [&a, &b] {
+            assert_eq!(app.get_json("/readyz").await["store"], "unavailable");
+            let ranked = app
+                .post("/v1/search?k=2")
+                .header("content-type", "model/obj")
+                .body(obj(&shapes::tube(0.21, 20, 16)))
+                .send()
+                .await;
+            assert_eq!(ranked.status(), StatusCode::OK);
+            assert_eq!(ranked.json()["results"][0]["id"], "m0");
+            assert_eq!(app.listed_ids().await.len(), 2);
+            assert_eq!(app.get_json("/v1/models/m1").await["id"], "m1");
+            let similar = app.get("/v1/models/m0/similar?k=2").send().await;
+            assert_eq!(similar.status(), StatusCode::SERVICE_UNAVAILABLE);
+            assert_eq!(similar.json()["error"]["code"], "store_unavailable");
+        }
+        let refused = b.add("id=n0", "model/obj", obj(&shapes::tube(0.4, 20, 16))).await;
+        assert_eq!(refused.status(), StatusCode::SERVICE_UNAVAILABLE);
+        assert_eq!(refused.json()["error"]["code"], "store_unavailable");
+        assert!(refused.headers().contains_key("retry-after"));
+
+        server.restart();
+        for store in &stores {
+            let mut up = store.shared().unwrap().connected();
+            tokio::time::timeout(Duration::from_secs(30), up.wait_for(|up| *up))
+                .await
+                .expect("the replica reconnects")
+                .unwrap();
+        }
+        let written = add_all(&b, &meshes("n", &[0.4])).await;
+        let seen = read_at(&a, "/v1/models/n0", &written[0].1).await;
+        assert_eq!(seen.status(), StatusCode::OK);
+        assert_eq!(a.get_json("/readyz").await["store"], "ok");
+    }
 }

@@ -26,6 +26,21 @@ pub struct Metrics {
     pub extraction_in_flight: Gauge,
     pub rankings_waiting: Gauge,
     pub patches_pending: Gauge,
+    pub replica: ReplicaMetrics,
+}
+
+/// How a replica follows a store shared with others (`api::follow`); zero on a store of its
+/// own.
+#[derive(Debug, Default)]
+pub struct ReplicaMetrics {
+    /// The last change position applied.
+    pub position: Gauge,
+    /// Changes announced and not yet applied.
+    pub lag: Gauge,
+    /// 1 while the store answers, 0 while it cannot be reached.
+    pub store_up: Gauge,
+    /// Connections to the store lost and made again since the start.
+    pub reconnections: Gauge,
 }
 
 impl Default for Metrics {
@@ -69,8 +84,34 @@ impl Default for Metrics {
             "Models whose patch descriptors (partial search) are still to be made",
             patches_pending.clone(),
         );
+        let replica = ReplicaMetrics::default();
+        for (name, help, gauge) in [
+            (
+                "replica_position",
+                "The last change of the shared store this replica applied",
+                &replica.position,
+            ),
+            (
+                "replica_lag_changes",
+                "Changes of the shared store announced and not yet applied here",
+                &replica.lag,
+            ),
+            (
+                "store_up",
+                "1 while the shared store answers, 0 while it cannot be reached",
+                &replica.store_up,
+            ),
+            (
+                "store_reconnections",
+                "Connections to the shared store lost and made again since the start",
+                &replica.reconnections,
+            ),
+        ] {
+            registry.register(name, help, gauge.clone());
+        }
         Self {
             registry,
+            replica,
             requests,
             extraction_seconds,
             search_seconds,

@@ -136,6 +136,10 @@ pub trait Shared: Send + Sync {
     /// Told, with the position when known, each time a change may have been committed since
     /// (a notification, or a reconnection after which some may have been missed).
     fn subscribe(&self) -> tokio::sync::watch::Receiver<u64>;
+    /// Whether the store answers (its listening connection is up), as it changes.
+    fn connected(&self) -> tokio::sync::watch::Receiver<bool>;
+    /// How often this process lost its connection to the store and made it again.
+    fn reconnections(&self) -> u64;
     /// The position of the last change this process committed (0 for none).
     fn written(&self) -> u64;
     /// Removes changes older than `age` from the log (not the last one).

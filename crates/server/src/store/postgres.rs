@@ -61,8 +61,8 @@ const RECONNECT: Duration = Duration::from_secs(1);
 /// A PostgreSQL database holding a salient catalogue.
 pub struct PostgresStore {
     pool: Pool,
-    /// The last position announced on [`CHANNEL`] (changed, too, after each reconnection).
-    notified: Arc<tokio::sync::watch::Sender<u64>>,
+    /// What the listening connection heard, and whether it holds.
+    listener: Arc<Listener>,
     /// The last position this process committed.
     written: Arc<AtomicU64>,
     /// The runtime the client runs on; shut down without waiting when the store is dropped
@@ -165,9 +165,9 @@ impl PostgresStore {
             .get_hosts()
             .iter()
             .all(|host| !matches!(host, Host::Tcp(_)));
-        let notified = Arc::new(tokio::sync::watch::Sender::new(0));
+        let listener = Arc::new(Listener::default());
         let manager = if local || config.get_ssl_mode() == SslMode::Disable {
-            runtime.spawn(listen(config.clone(), NoTls, notified.clone()));
+            runtime.spawn(listen(config.clone(), NoTls, listener.clone()));
             Manager::from_config(config, NoTls, manager_config)
         } else {
             let roots =
@@ -180,7 +180,7 @@ impl PostgresStore {
             .with_root_certificates(roots)
             .with_no_client_auth();
             let tls = tokio_postgres_rustls::MakeRustlsConnect::new(tls);
-            runtime.spawn(listen(config.clone(), tls.clone(), notified.clone()));
+            runtime.spawn(listen(config.clone(), tls.clone(), listener.clone()));
             Manager::from_config(config, tls, manager_config)
         };
         let pool = {
@@ -198,7 +198,7 @@ impl PostgresStore {
         };
         let store = Self {
             pool,
-            notified,
+            listener,
             written: Arc::new(AtomicU64::new(0)),
             runtime: Some(runtime),
         };
@@ -299,30 +299,41 @@ impl Param {
 /// The work of one transaction ([`PostgresStore::transaction`]), borrowing it.
 type TxFuture<'a, T> = Pin<Box<dyn Future<Output = StoreResult<T>> + Send + 'a>>;
 
-/// Keeps a connection that listens on [`CHANNEL`] and tells `notified` of each position
-/// announced, connecting again whenever it is lost; after each (re)connection it tells
-/// `notified` too, since changes committed meanwhile were announced to nobody.
-async fn listen<T>(
-    mut config: tokio_postgres::Config,
-    tls: T,
-    notified: Arc<tokio::sync::watch::Sender<u64>>,
-) where
+/// What the connection listening on [`CHANNEL`] heard ([`listen`]).
+#[derive(Default)]
+struct Listener {
+    /// The last position announced (changed, too, after each connection).
+    notified: tokio::sync::watch::Sender<u64>,
+    /// Whether the connection is up: the database answers.
+    connected: tokio::sync::watch::Sender<bool>,
+    /// Connections made after the first.
+    reconnections: AtomicU64,
+}
+
+/// Keeps a connection that listens on [`CHANNEL`] and tells `listener` of each position
+/// announced, connecting again whenever it is lost; after each (re)connection it tells it
+/// too, since changes committed meanwhile were announced to nobody.
+async fn listen<T>(mut config: tokio_postgres::Config, tls: T, listener: Arc<Listener>)
+where
     T: MakeTlsConnect<Socket> + Clone + Send + 'static,
     T::Stream: Send + 'static,
     T::TlsConnect: Send,
     <T::TlsConnect as TlsConnect<Socket>>::Future: Send,
 {
     config.connect_timeout(WAIT);
+    let mut first = true;
     loop {
         if let Ok((client, mut connection)) = config.connect(tls.clone()).await {
-            let announced = notified.clone();
+            let announced = listener.clone();
             let messages = tokio::spawn(async move {
                 while let Some(Ok(message)) =
                     std::future::poll_fn(|cx| connection.poll_message(cx)).await
                 {
                     if let AsyncMessage::Notification(n) = message {
                         if let Ok(position) = n.payload().parse::<u64>() {
-                            announced.send_modify(|last| *last = (*last).max(position));
+                            announced
+                                .notified
+                                .send_modify(|last| *last = (*last).max(position));
                         }
                     }
                 }
@@ -332,9 +343,14 @@ async fn listen<T>(
                 .await
                 .is_ok()
             {
-                notified.send_modify(|_| {});
+                if !std::mem::take(&mut first) {
+                    listener.reconnections.fetch_add(1, Ordering::Relaxed);
+                }
+                listener.connected.send_replace(true);
+                listener.notified.send_modify(|_| {});
                 // Until the connection ends; the client is kept open meanwhile.
                 let _ = messages.await;
+                listener.connected.send_replace(false);
             } else {
                 messages.abort();
             }
@@ -893,7 +909,15 @@ impl Shared for PostgresStore {
     }
 
     fn subscribe(&self) -> tokio::sync::watch::Receiver<u64> {
-        self.notified.subscribe()
+        self.listener.notified.subscribe()
+    }
+
+    fn connected(&self) -> tokio::sync::watch::Receiver<bool> {
+        self.listener.connected.subscribe()
+    }
+
+    fn reconnections(&self) -> u64 {
+        self.listener.reconnections.load(Ordering::Relaxed)
     }
 
     fn written(&self) -> u64 {
