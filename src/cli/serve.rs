@@ -85,6 +85,10 @@ pub struct Args {
     /// Origins allowed by CORS, comma-separated (`*` for any).
     #[arg(long, env = "SALIENT_CORS_ORIGINS", value_delimiter = ',')]
     cors_origins: Option<Vec<String>>,
+    /// On a shared store whose models were extracted with other parameters: make this
+    /// replica's parameters the store's and re-extract. Stop the other replicas first.
+    #[arg(long, env = "SALIENT_ADOPT_EXTRACTION", value_parser = clap::builder::BoolishValueParser::new(), num_args = 0..=1, default_missing_value = "true")]
+    adopt_extraction: Option<bool>,
 }
 
 impl Args {
@@ -118,6 +122,7 @@ impl Args {
         config.metrics_open = a.metrics_open.unwrap_or(config.metrics_open);
         config.up_axis = a.up_axis.unwrap_or(config.up_axis);
         config.requests_per_minute = a.requests_per_minute.unwrap_or(config.requests_per_minute);
+        config.adopt_extraction = a.adopt_extraction.unwrap_or(config.adopt_extraction);
         // Keys are secrets: the environment is the one place they come from, so that they
         // appear in no command line (`ps`) and no configuration file.
         config.inline_keys = std::env::var("SALIENT_API_KEYS").ok().map(Secret);

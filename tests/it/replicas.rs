@@ -297,3 +297,29 @@ postgres_only! {
         assert_eq!(a.get_json("/readyz").await["store"], "ok");
     }
 }
+
+postgres_only! {
+    /// A replica that extracts otherwise than the store's others is refused; one told to
+    /// adopt its parameters starts, and the others see that it did.
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn a_replica_with_other_extraction_parameters_is_refused_unless_it_adopts_them() {
+        let url = fresh_database_url();
+        let first = replica(&url, |_| {});
+        let other = |adopt: bool| {
+            let mut config = Config::default();
+            config.params.d2.samples += 1;
+            config.adopt_extraction = adopt;
+            App::new(config, Arc::new(PostgresStore::open(&url).unwrap()))
+        };
+        let refused = other(false).err().expect("refused");
+        assert!(refused.to_string().contains("--adopt-extraction"), "{refused}");
+        let adopted = other(true).expect("it adopts");
+        drop(adopted);
+        follow::catch_up(&first.app).await.unwrap();
+        let metrics = first.get("/metrics").send().await.text();
+        assert!(metrics.contains("salient_replica_other_extraction 1"), "{metrics}");
+        // And the first, started again with its old parameters, is now the one refused.
+        let again = App::new(Config::default(), Arc::new(PostgresStore::open(&url).unwrap()));
+        assert!(again.is_err());
+    }
+}

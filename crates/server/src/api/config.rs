@@ -70,6 +70,10 @@ pub struct Config {
     /// How long a request that carries a `Salient-Position` (on a store shared by replicas)
     /// waits for this replica to apply that change before it is answered 503.
     pub position_wait_ms: u64,
+    /// On a store shared by replicas whose models were extracted with other parameters:
+    /// make this replica's parameters the store's (and re-extract) rather than refuse to
+    /// start. For a deliberate change, with the other replicas stopped.
+    pub adopt_extraction: bool,
 }
 
 /// A value that must not be printed: its `Debug` says only that it is there.
@@ -113,6 +117,7 @@ impl Default for Config {
             up_axis: UpAxis::Y,
             requests_per_minute: 0,
             position_wait_ms: 5000,
+            adopt_extraction: false,
         }
     }
 }

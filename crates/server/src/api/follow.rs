@@ -38,6 +38,33 @@ const BATCH: usize = 256;
 const KEEP: Duration = Duration::from_secs(24 * 3600);
 /// How often a replica trims the log.
 const TRIM_EVERY: Duration = Duration::from_secs(3600);
+/// The state key of the extraction parameters every replica on the store uses
+/// ([`Params::extraction_key`](salient_core::params::Params::extraction_key)).
+pub(crate) const EXTRACTION_KEY: &str = "extraction_params";
+
+/// Makes sure this replica extracts as the store's other replicas do: a replica with other
+/// parameters would mark every other's signatures stale and re-extract them, and they its.
+/// The first replica on a store records its parameters; one with others is refused, unless
+/// it adopts them ([`Config::adopt_extraction`](super::Config)): then they become the store's,
+/// and its signatures stale, which this replica re-extracts.
+pub fn agree_on_extraction(
+    store: &dyn Store,
+    shared: &dyn Shared,
+    config: &super::Config,
+) -> Result<(), super::StartError> {
+    let _agreeing = shared.lock(EXTRACTION_KEY)?;
+    let mine = config.params.extraction_key();
+    match store.state(EXTRACTION_KEY)? {
+        Some(theirs) if theirs == mine => Ok(()),
+        Some(_) if !config.adopt_extraction => Err(super::StartError::OtherExtraction),
+        recorded => {
+            if recorded.is_some() {
+                tracing::warn!("adopting this replica's extraction parameters for the shared store: its models will be re-extracted");
+            }
+            Ok(store.set_state(EXTRACTION_KEY, &mine)?)
+        }
+    }
+}
 
 /// How far this replica has applied the shared store's log.
 pub struct Follower {
@@ -150,6 +177,13 @@ fn apply_next(app: &App, after: u64) -> Result<Option<u64>, AppError> {
     }
     if states.contains(super::dismissed::STATE_KEY) {
         app.dismissed.reload(store)?;
+    }
+    if states.contains(EXTRACTION_KEY) {
+        let agreed = store.state(EXTRACTION_KEY)? == Some(app.config.params.extraction_key());
+        if !agreed {
+            tracing::error!("another replica adopted other extraction parameters for the shared store: stop this one, and run every replica with the same configuration");
+        }
+        app.metrics.replica.other_extraction.set(i64::from(!agreed));
     }
     app.set_model_count(app.catalog_len());
     Ok(Some(last))

@@ -41,6 +41,8 @@ pub struct ReplicaMetrics {
     pub store_up: Gauge,
     /// Connections to the store lost and made again since the start.
     pub reconnections: Gauge,
+    /// 1 once another replica adopted other extraction parameters for the store.
+    pub other_extraction: Gauge,
 }
 
 impl Default for Metrics {
@@ -105,6 +107,11 @@ impl Default for Metrics {
                 "store_reconnections",
                 "Connections to the shared store lost and made again since the start",
                 &replica.reconnections,
+            ),
+            (
+                "replica_other_extraction",
+                "1 once another replica adopted other extraction parameters for the shared store",
+                &replica.other_extraction,
             ),
         ] {
             registry.register(name, help, gauge.clone());

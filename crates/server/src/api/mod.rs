@@ -129,6 +129,8 @@ pub enum StartError {
     Keys(#[from] KeyError),
     #[error("cannot write the ranking index's shelf (see `shelf_dir`): {0}")]
     Shelf(std::io::Error),
+    #[error("the shared store's models were extracted with other parameters than this replica's: run every replica with the same configuration, or, to change them, stop the others and start one with --adopt-extraction (SALIENT_ADOPT_EXTRACTION=1), which re-extracts every model")]
+    OtherExtraction,
     #[error("refusing to serve {0} without API keys: anyone who can reach it could add and delete models. Set SALIENT_API_KEYS=write:KEY (or admin:KEY), or pass --keys FILE (make a key with `salient keys new --scope write --label NAME --file FILE`); or, on a network you trust, --allow-anonymous")]
     Anonymous(std::net::SocketAddr),
 }
@@ -205,7 +207,10 @@ impl App {
         }
         // Read before loading: what is committed meanwhile is applied again after.
         let follower = match store.shared() {
-            Some(shared) => Some(follow::Follower::new(shared.head()?)),
+            Some(shared) => {
+                follow::agree_on_extraction(store.as_ref(), shared, &config)?;
+                Some(follow::Follower::new(shared.head()?))
+            }
             None => None,
         };
         let (snapshot, stale_parameters, missing_descriptor) = load(&config, store.as_ref())?;
