@@ -323,3 +323,50 @@ postgres_only! {
         assert!(again.is_err());
     }
 }
+
+postgres_only! {
+    /// Two replicas start on a store whose signatures are stale for them: one claims the
+    /// re-extraction and the other leaves it, so each model is re-extracted once.
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn stale_signatures_are_re_extracted_once_by_one_of_the_replicas() {
+        let url = fresh_database_url();
+        {
+            let old = replica(&url, |_| {});
+            add_all(&old, &meshes("m", &[0.2, 0.3, 0.4])).await;
+        }
+        let store = PostgresStore::open(&url).unwrap();
+        let shared = store.shared().unwrap();
+        let before = shared.head().unwrap();
+        let [b, c] = [true, false].map(|adopt| {
+            let mut config = Config::default();
+            config.params.d2.samples += 1;
+            config.adopt_extraction = adopt;
+            let app = App::new(config, Arc::new(PostgresStore::open(&url).unwrap()));
+            TestApp::serving(app.expect("it starts"))
+        });
+        assert_eq!((b.app.stale_count(), c.app.stale_count()), (3, 3));
+        let mut changed = shared.subscribe();
+        b.app.start_background();
+        c.app.start_background();
+        tokio::time::timeout(Duration::from_secs(120), async {
+            loop {
+                follow::catch_up(&b.app).await.unwrap();
+                follow::catch_up(&c.app).await.unwrap();
+                if b.app.stale_count() + c.app.stale_count() == 0 {
+                    break;
+                }
+                changed.changed().await.unwrap();
+            }
+        })
+        .await
+        .expect("the signatures are re-extracted");
+        let Changes::Next(changes) = shared.changes_after(before, 100).unwrap() else {
+            panic!("the log was trimmed");
+        };
+        let updates = changes
+            .iter()
+            .filter(|(_, change)| matches!(change, Change::Model(_)))
+            .count();
+        assert_eq!(updates, 3, "{changes:?}");
+    }
+}

@@ -38,6 +38,9 @@ const BATCH: usize = 256;
 const KEEP: Duration = Duration::from_secs(24 * 3600);
 /// How often a replica trims the log.
 const TRIM_EVERY: Duration = Duration::from_secs(3600);
+/// How often a replica looks for background work another one claimed and may have left
+/// (it stopped): re-extraction.
+const TAKE_OVER_EVERY: Duration = Duration::from_secs(30);
 /// The state key of the extraction parameters every replica on the store uses
 /// ([`Params::extraction_key`](salient_core::params::Params::extraction_key)).
 pub(crate) const EXTRACTION_KEY: &str = "extraction_params";
@@ -102,7 +105,7 @@ pub fn start(app: &Arc<App>) {
     let mut notified = shared.subscribe();
     let app: Weak<App> = Arc::downgrade(app);
     tokio::spawn(async move {
-        let mut trimmed = Instant::now();
+        let (mut trimmed, mut looked) = (Instant::now(), Instant::now());
         loop {
             let Some(app) = app.upgrade() else {
                 return;
@@ -115,6 +118,10 @@ pub fn start(app: &Arc<App>) {
                 if let Err(e) = app.with_store(|store| trim(store)).await {
                     tracing::warn!(error = %e, "cannot trim the store's change log");
                 }
+            }
+            if looked.elapsed() >= TAKE_OVER_EVERY {
+                looked = Instant::now();
+                app.reindex_if_due();
             }
             drop(app);
             // A lost notification, or a closed channel, is made up by the poll.
@@ -177,6 +184,9 @@ fn apply_next(app: &App, after: u64) -> Result<Option<u64>, AppError> {
     }
     if states.contains(super::dismissed::STATE_KEY) {
         app.dismissed.reload(store)?;
+    }
+    if states.contains(super::reindex::STATE_KEY) {
+        app.reindex.reload(store)?;
     }
     if states.contains(EXTRACTION_KEY) {
         let agreed = store.state(EXTRACTION_KEY)? == Some(app.config.params.extraction_key());

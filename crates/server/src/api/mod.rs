@@ -285,12 +285,18 @@ impl App {
     /// `reindex_on_start` is off); and the patches of every model without them
     /// ([`patches`]). Needs a Tokio runtime.
     pub fn start_background(self: &Arc<Self>) {
-        let stale = self.stale_count();
-        if self.reindex.was_running() || (self.config.reindex_on_start && stale > 0) {
-            reindex::start(self);
-        }
+        self.reindex_if_due();
         patches::start(self);
         follow::start(self);
+    }
+
+    /// Starts re-extracting if a run was left unfinished, or if signatures are stale and
+    /// `reindex_on_start` is on; a run going on (here, or on another replica of a shared
+    /// store) is left to go on.
+    fn reindex_if_due(self: &Arc<Self>) {
+        if self.reindex.was_running() || (self.config.reindex_on_start && self.stale_count() > 0) {
+            reindex::start(self);
+        }
     }
 
     /// How many models' patches are still to be made (`None` before the start's count).

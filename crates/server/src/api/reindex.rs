@@ -8,6 +8,10 @@
 //! and ranking keeps its own threads. Resumable: the progress, with the last model done, is
 //! kept in the store's state after every model; a server restarted mid-run continues after
 //! that model. A model replaced or deleted meanwhile is skipped, not overwritten.
+//!
+//! On a store shared by replicas one re-extracts at a time, holding a claim in the store
+//! that ends with its session if it dies; the others look again now and then
+//! ([`super::follow`]), and one of them takes the run over where the progress says it was.
 
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
@@ -25,8 +29,8 @@ use crate::store::{Store, StoreResult};
 use salient_core::params::Limits;
 use salient_core::pipeline::{signature_of_file, Extent};
 
-/// Key of the progress in the store's state.
-const STATE_KEY: &str = "reindex";
+/// Key of the progress in the store's state, and name of the claim on a run.
+pub(crate) const STATE_KEY: &str = "reindex";
 
 /// Failures listed in the progress (the count goes on).
 const MAX_FAILURES_LISTED: usize = 100;
@@ -90,6 +94,16 @@ impl Reindexer {
         })
     }
 
+    /// Reads the progress again, as another replica's run changed it; this one's own run
+    /// keeps its own.
+    pub fn reload(&self, store: &dyn Store) -> StoreResult<()> {
+        if !self.active.load(Ordering::SeqCst) {
+            self.progress
+                .send_replace(Self::load(store)?.progress.borrow().clone());
+        }
+        Ok(())
+    }
+
     /// Whether the last process stopped in the middle of a run.
     pub fn was_running(&self) -> bool {
         self.progress.borrow().state == ReindexState::Running
@@ -122,6 +136,35 @@ pub fn start(app: &Arc<App>) -> bool {
 }
 
 async fn run(app: Arc<App>) {
+    let claim = app
+        .with_store(|store| {
+            let Some(shared) = store.shared() else {
+                return Ok(Some(None));
+            };
+            let claim = shared.try_lock(STATE_KEY)?;
+            // Taken over from a replica that stopped: go on where it was.
+            let stored = Reindexer::load(store)?.progress.borrow().clone();
+            Ok(claim.map(|claim| Some((claim, stored))))
+        })
+        .await;
+    let _claim = match claim {
+        Ok(Some(claim)) => claim.map(|(claim, stored)| {
+            if stored.state == ReindexState::Running {
+                app.reindex.progress.send_replace(stored);
+            }
+            claim
+        }),
+        Ok(None) => {
+            tracing::debug!("another replica is re-extracting");
+            app.reindex.active.store(false, Ordering::SeqCst);
+            return;
+        }
+        Err(error) => {
+            tracing::error!(%error, "cannot claim the re-extraction");
+            app.reindex.active.store(false, Ordering::SeqCst);
+            return;
+        }
+    };
     tracing::info!("re-extraction started");
     loop {
         let last = app.reindex.progress.borrow().last_id.clone();

@@ -146,6 +146,9 @@ pub trait Shared: Send + Sync {
     fn trim(&self, age: std::time::Duration) -> StoreResult<u64>;
     /// Holds the lock `name` for every process on the store until the guard is dropped.
     fn lock(&self, name: &str) -> StoreResult<Box<dyn Send>>;
+    /// [`Shared::lock`] if no process holds it now, else `None`: a claim on work that one
+    /// process does at a time, released when the guard is dropped or the process dies.
+    fn try_lock(&self, name: &str) -> StoreResult<Option<Box<dyn Send>>>;
 }
 
 /// The storage operations the service uses.

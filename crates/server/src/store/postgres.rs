@@ -938,16 +938,33 @@ impl Shared for PostgresStore {
     }
 
     fn lock(&self, name: &str) -> StoreResult<Box<dyn Send>> {
+        let lock = self.advisory_lock(name, "SELECT pg_advisory_lock($1), true")?;
+        Ok(Box::new(
+            lock.expect("pg_advisory_lock waits until it holds the lock"),
+        ))
+    }
+
+    fn try_lock(&self, name: &str) -> StoreResult<Option<Box<dyn Send>>> {
+        let lock = self.advisory_lock(name, "SELECT 1, pg_try_advisory_lock($1)")?;
+        Ok(lock.map(|lock| Box::new(lock) as Box<dyn Send>))
+    }
+}
+
+impl PostgresStore {
+    /// Takes the session advisory lock `name` with `sql` (whose second column says whether
+    /// it is held) on a connection of its own, which then holds it until the guard drops.
+    fn advisory_lock(&self, name: &str, sql: &'static str) -> StoreResult<Option<AdvisoryLock>> {
         let key = advisory_key(name);
-        let client = self.run(|pool| async move {
+        let taken = self.run(move |pool| async move {
             let client = pool.get().await.map_err(pool_error)?;
-            client
-                .execute("SELECT pg_advisory_lock($1)", &[&key])
+            let held: bool = client
+                .query_one(sql, &[&key])
                 .await
-                .map_err(backend)?;
-            Ok(client)
+                .map_err(backend)?
+                .get(1);
+            Ok(held.then_some(client))
         })?;
-        Ok(Box::new(AdvisoryLock {
+        Ok(taken.map(|client| AdvisoryLock {
             client: Some(client),
             key,
             runtime: self
