@@ -21,6 +21,11 @@ use salient_core::mesh::load_bytes;
 use salient_core::params::Limits;
 use salient_core::partial::stored_patches;
 
+/// The name of the claim on counting the models that lack patches, on a shared store.
+const CLAIM: &str = "patches";
+/// How often a replica without that claim tries for it again.
+const TRY_CLAIM_EVERY: std::time::Duration = std::time::Duration::from_secs(30);
+
 /// The models whose patches are to be made.
 pub struct Patcher {
     queue: Mutex<Queue>,
@@ -92,6 +97,59 @@ pub fn start(app: &Arc<App>) {
 }
 
 async fn run(app: Arc<App>) {
+    let patcher = &app.patcher;
+    // On a store shared by replicas, one counts and makes the models lacking patches (those
+    // stored by an earlier release, or by a replica that stopped before making them),
+    // holding a claim until its queue is empty; the others make those of their own writes
+    // and try for the claim again now and then.
+    let mut counted = false;
+    let mut claim = None;
+    loop {
+        if !counted {
+            match app
+                .with_store(|store| store.shared().map(|s| s.try_lock(CLAIM)).transpose())
+                .await
+            {
+                Ok(None) => counted = true,
+                Ok(Some(Some(held))) => (claim, counted) = (Some(held), true),
+                Ok(Some(None)) => patcher.counted([]),
+                Err(error) => tracing::warn!(%error, "cannot claim the patches to make"),
+            }
+            if counted {
+                match lacking(&app).await {
+                    Ok(lacking) => patcher.counted(lacking),
+                    Err(error) => {
+                        tracing::error!(%error, "cannot read the stored patches; partial search keeps to the fit");
+                        return;
+                    }
+                }
+            }
+        }
+        let next = patcher.change(|queue| {
+            let next = queue.lacking.pop_first();
+            queue.working = next.is_some();
+            next
+        });
+        let Some(id) = next else {
+            // Made: another replica may count what it left.
+            drop(claim.take());
+            if counted {
+                patcher.wake.notified().await;
+            } else {
+                let _ = tokio::time::timeout(TRY_CLAIM_EVERY, patcher.wake.notified()).await;
+            }
+            continue;
+        };
+        app.pool.idle().await;
+        if !make(&app, &id).await {
+            tracing::warn!(%id, "cannot make a model's patches; partial search fits it by its features");
+        }
+        patcher.change(|queue| queue.working = false);
+    }
+}
+
+/// The models of the catalogue whose stored patches are missing or of another layout.
+async fn lacking(app: &Arc<App>) -> Result<Vec<ModelId>, super::error::AppError> {
     let made = app
         .with_store(|store| {
             store
@@ -102,33 +160,14 @@ async fn run(app: Arc<App>) {
                 })
                 .collect::<Result<HashSet<ModelId>, _>>()
         })
-        .await;
-    let made = match made {
-        Ok(made) => made,
-        Err(error) => {
-            tracing::error!(%error, "cannot read the stored patches; partial search keeps to the fit");
-            return;
-        }
-    };
-    let patcher = &app.patcher;
-    let ids: Vec<ModelId> = app.catalog.snapshot().records.keys().cloned().collect();
-    patcher.counted(ids.into_iter().filter(|id| !made.contains(id)));
-    loop {
-        let next = patcher.change(|queue| {
-            let next = queue.lacking.pop_first();
-            queue.working = next.is_some();
-            next
-        });
-        let Some(id) = next else {
-            patcher.wake.notified().await;
-            continue;
-        };
-        app.pool.idle().await;
-        if !make(&app, &id).await {
-            tracing::warn!(%id, "cannot make a model's patches; partial search fits it by its features");
-        }
-        patcher.change(|queue| queue.working = false);
-    }
+        .await?;
+    let snapshot = app.catalog.snapshot();
+    Ok(snapshot
+        .records
+        .keys()
+        .filter(|id| !made.contains(*id))
+        .cloned()
+        .collect())
 }
 
 /// Makes and keeps the patches of model `id` from its stored upload; true when made, or when
