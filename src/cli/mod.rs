@@ -1,12 +1,14 @@
 //! Subcommands of the `salient` binary. Each translates arguments into library calls and
 //! results into output; the method itself lives in the library.
 
+mod backup;
 mod compare;
 mod eval;
 mod extract;
 mod health;
 mod ingest;
 mod keys;
+mod migrate;
 mod reindex;
 mod render;
 mod search;
@@ -39,7 +41,7 @@ enum Command {
     /// Rank the meshes of a folder by similarity to a query.
     Search(search::Args),
     /// Run the HTTP retrieval service on its store.
-    Serve(serve::Args),
+    Serve(Box<serve::Args>),
     /// Re-extract every stored model with the current parameters.
     Reindex(reindex::Args),
     /// Upload every mesh of a folder to a running service.
@@ -54,6 +56,12 @@ enum Command {
     Eval(eval::Args),
     /// Draw a mesh with its salient points and regions (PNG, three views).
     Render(render::Args),
+    /// Ask a running service for a consistent snapshot of its sled store (its backup folder).
+    Backup(backup::Args),
+    /// Copy a backup (a store folder) into an empty store, sled or PostgreSQL, and check it.
+    Restore(migrate::Args),
+    /// Copy a whole catalogue into an empty store (sled to PostgreSQL or back) and check it.
+    MigrateStore(migrate::Args),
 }
 
 pub fn run(cli: Cli) -> anyhow::Result<()> {
@@ -67,7 +75,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Extract(args) => extract::run(args),
         Command::Compare(args) => compare::run(args),
         Command::Search(args) => search::run(args),
-        Command::Serve(args) => serve::run(args),
+        Command::Serve(args) => serve::run(*args),
         Command::Reindex(args) => reindex::run(args),
         Command::Ingest(args) => ingest::run(args),
         Command::Keys(args) => keys::run(args),
@@ -78,6 +86,8 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         }
         Command::Eval(args) => eval::run(args),
         Command::Render(args) => render::run(args),
+        Command::Backup(args) => backup::run(args),
+        Command::Restore(args) | Command::MigrateStore(args) => migrate::run(args),
     }
 }
 

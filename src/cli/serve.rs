@@ -89,6 +89,9 @@ pub struct Args {
     /// replica's parameters the store's and re-extract. Stop the other replicas first.
     #[arg(long, env = "SALIENT_ADOPT_EXTRACTION", value_parser = clap::builder::BoolishValueParser::new(), num_args = 0..=1, default_missing_value = "true")]
     adopt_extraction: Option<bool>,
+    /// Folder for `POST /v1/admin/backup`'s snapshots of the sled store (`salient backup`).
+    #[arg(long, env = "SALIENT_BACKUP_DIR")]
+    backup_dir: Option<PathBuf>,
 }
 
 impl Args {
@@ -123,6 +126,7 @@ impl Args {
         config.up_axis = a.up_axis.unwrap_or(config.up_axis);
         config.requests_per_minute = a.requests_per_minute.unwrap_or(config.requests_per_minute);
         config.adopt_extraction = a.adopt_extraction.unwrap_or(config.adopt_extraction);
+        config.backup_dir = a.backup_dir.or(config.backup_dir);
         // Keys are secrets: the environment is the one place they come from, so that they
         // appear in no command line (`ps`) and no configuration file.
         config.inline_keys = std::env::var("SALIENT_API_KEYS").ok().map(Secret);

@@ -848,6 +848,9 @@ impl Store for DamagedStore {
     fn set_state(&self, key: &str, value: &[u8]) -> StoreResult<()> {
         self.0.set_state(key, value)
     }
+    fn states(&self) -> StoreResult<Vec<(String, Vec<u8>)>> {
+        self.0.states()
+    }
 }
 
 /// An internal error is a 500 in the JSON shape that says what happened in general terms and

@@ -18,6 +18,7 @@ mod synthetic;
 
 mod api;
 mod auth;
+mod backup;
 mod cli;
 mod concurrency;
 mod duplicates;

@@ -371,36 +371,35 @@ postgres_only! {
     }
 }
 
+/// Waits, bounded, for `store` to hold the lock `name` (a lock let go is freed in the
+/// background; a closed session's, once the server has ended it).
+fn lock_within(store: &Arc<PostgresStore>, name: &'static str) -> Box<dyn Send> {
+    let (taken, told) = std::sync::mpsc::channel();
+    let store = store.clone();
+    std::thread::spawn(move || {
+        let _ = taken.send(store.shared().unwrap().lock(name).unwrap());
+    });
+    told.recv_timeout(Duration::from_secs(30))
+        .expect("the lock is free within 30 s")
+}
+
 postgres_only! {
     /// A claim is held by one process at a time, and freed when its holder lets it go or
     /// goes away (its session ends, as when a replica is killed), so another takes it over.
     #[test]
     fn a_claim_is_held_once_and_taken_over_when_its_holder_goes() {
         let url = fresh_database_url();
-        let (one, two) = (
-            PostgresStore::open(&url).unwrap(),
-            PostgresStore::open(&url).unwrap(),
-        );
-        let (one_, two_) = (one.shared().unwrap(), two.shared().unwrap());
-        let held = one_.try_lock("work").unwrap().expect("free at first");
-        assert!(two_.try_lock("work").unwrap().is_none());
-        assert!(two_.try_lock("other work").unwrap().is_some());
+        let [one, two] = [(); 2].map(|()| Arc::new(PostgresStore::open(&url).unwrap()));
+        let held = one.shared().unwrap().try_lock("work").unwrap().expect("free at first");
+        assert!(two.shared().unwrap().try_lock("work").unwrap().is_none());
+        assert!(two.shared().unwrap().try_lock("other work").unwrap().is_some());
         drop(held);
-        let taken = two_.try_lock("work").unwrap().expect("let go");
-        assert!(one_.try_lock("work").unwrap().is_none());
+        let taken = lock_within(&two, "work");
+        assert!(one.shared().unwrap().try_lock("work").unwrap().is_none());
         drop(taken);
-        let gone = one_.try_lock("work").unwrap().expect("free again");
-        std::mem::forget(gone); // never let go: its session ends with the store
+        // Never let go: its session ends with the store, as a killed replica's does.
+        std::mem::forget(lock_within(&one, "work"));
         drop(one);
-        let mut taken = None;
-        // The server ends the session when the connection closes; the claim is free once it has.
-        for _ in 0..1000 {
-            taken = two_.try_lock("work").unwrap();
-            if taken.is_some() {
-                break;
-            }
-            std::thread::yield_now();
-        }
-        assert!(taken.is_some(), "the claim of a closed session is taken over");
+        lock_within(&two, "work");
     }
 }

@@ -7,6 +7,7 @@
 //! no lock is ever held on an async thread. Records are a persistent map (`imbl`) and index
 //! entries are kept in shared chunks, so a new snapshot copies pointers and a chunk or two.
 
+use std::collections::BTreeSet;
 use std::path::PathBuf;
 use std::sync::Arc;
 
@@ -60,12 +61,37 @@ impl Snapshot {
 /// The published snapshot and how to change it.
 pub struct Catalog {
     current: ArcSwap<Snapshot>,
+    /// While an online backup copies the store, the models changed since it began
+    /// ([`Catalog::track_changes`]).
+    changed: std::sync::Mutex<Option<BTreeSet<ModelId>>>,
 }
 
 impl Catalog {
     pub fn new(snapshot: Snapshot) -> Self {
         Self {
             current: ArcSwap::from_pointee(snapshot),
+            changed: std::sync::Mutex::new(None),
+        }
+    }
+
+    /// Starts noting which models change, until [`Catalog::changes`]: every write to the
+    /// store is followed, under the service's write lock, by one here.
+    pub fn track_changes(&self) {
+        *self.changed.lock().expect("never poisoned") = Some(BTreeSet::new());
+    }
+
+    /// The models changed since [`Catalog::track_changes`]; stops noting them.
+    pub fn changes(&self) -> BTreeSet<ModelId> {
+        self.changed
+            .lock()
+            .expect("never poisoned")
+            .take()
+            .unwrap_or_default()
+    }
+
+    fn note(&self, ids: impl IntoIterator<Item = ModelId>) {
+        if let Some(changed) = &mut *self.changed.lock().expect("never poisoned") {
+            changed.extend(ids);
         }
     }
 
@@ -94,11 +120,13 @@ impl Catalog {
 
     /// Adds or replaces a model; returns the number of models.
     pub fn put(&self, record: ModelRecord, row: Row) -> usize {
+        self.note([record.id.clone()]);
         self.update(|s| s.put(record, row))
     }
 
     /// Replaces a model's record, its signature unchanged.
     pub fn set_record(&self, record: ModelRecord) {
+        self.note([record.id.clone()]);
         self.update(|s| {
             s.records.insert(record.id.clone(), Arc::new(record));
         });
@@ -106,11 +134,14 @@ impl Catalog {
 
     /// Replaces the whole catalogue (loaded again from the store).
     pub fn replace(&self, snapshot: Snapshot) {
+        let (before, after) = (self.snapshot(), &snapshot);
+        self.note(before.records.keys().chain(after.records.keys()).cloned());
         self.current.store(Arc::new(snapshot));
     }
 
     /// Removes a model; returns the number of models.
     pub fn remove(&self, id: &ModelId) -> usize {
+        self.note([id.clone()]);
         self.update(|s| {
             s.index.remove(id.as_str());
             s.records.remove(id);

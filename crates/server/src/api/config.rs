@@ -74,6 +74,9 @@ pub struct Config {
     /// make this replica's parameters the store's (and re-extract) rather than refuse to
     /// start. For a deliberate change, with the other replicas stopped.
     pub adopt_extraction: bool,
+    /// Where `POST /v1/admin/backup` writes its snapshots of a sled store (each a store
+    /// folder of its own); none: backups are not offered.
+    pub backup_dir: Option<PathBuf>,
 }
 
 /// A value that must not be printed: its `Debug` says only that it is there.
@@ -118,6 +121,7 @@ impl Default for Config {
             requests_per_minute: 0,
             position_wait_ms: 5000,
             adopt_extraction: false,
+            backup_dir: None,
         }
     }
 }

@@ -34,6 +34,9 @@ pub enum AppError {
     /// The model exists but lacks what the request needs (a descriptor from a newer format).
     #[error("{0}")]
     Conflict(String),
+    /// The operation needs what this service was not set up with (a backup folder).
+    #[error("{0}")]
+    NotConfigured(String),
     /// The upload duplicates a stored model, and the client asked to reject duplicates.
     #[error("the upload duplicates model {:?} ({})", .0.id, .0.evidence)]
     Duplicate(DuplicateMatch),
@@ -127,6 +130,7 @@ impl AppError {
             AppError::NotFound(_) => (StatusCode::NOT_FOUND, "not_found"),
             AppError::Conflict(_) => (StatusCode::CONFLICT, "missing_descriptor"),
             AppError::Duplicate(_) => (StatusCode::CONFLICT, "duplicate"),
+            AppError::NotConfigured(_) => (StatusCode::CONFLICT, "not_configured"),
             AppError::PayloadTooLarge(_) => (StatusCode::PAYLOAD_TOO_LARGE, "payload_too_large"),
             AppError::UnsupportedMediaType(_) => {
                 (StatusCode::UNSUPPORTED_MEDIA_TYPE, "unsupported_format")

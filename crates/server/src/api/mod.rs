@@ -3,6 +3,7 @@
 //! [`pool::Pool`]. Handlers only translate between HTTP and the library.
 
 pub mod auth;
+mod backup;
 mod catalog;
 pub mod config;
 pub mod dismissed;
@@ -98,6 +99,11 @@ pub struct App {
     /// Called, on a blocking thread, before an upload that rejects duplicates takes the locks
     /// its check runs under (tests).
     duplicate_hook: Option<Hook>,
+    /// Called, on a blocking thread, when a backup has copied the store and before it copies
+    /// what changed meanwhile (tests).
+    backup_hook: Option<Hook>,
+    /// Held by the backup running, if any.
+    backup_gate: tokio::sync::Mutex<()>,
     /// Meshes and verdicts of the near-duplicate check.
     verifier: duplicates::Verifier,
     /// Pairs an operator said are not duplicates.
@@ -253,6 +259,8 @@ impl App {
             queries: std::sync::Mutex::new(lru::LruCache::new(RECENT_QUERIES)),
             ranking_hook: None,
             duplicate_hook: None,
+            backup_hook: None,
+            backup_gate: tokio::sync::Mutex::new(()),
             verifier: duplicates::Verifier::default(),
             dismissed,
             duplicate_gate: tokio::sync::Mutex::new(()),
@@ -278,6 +286,11 @@ impl App {
     /// Sets the hook called before an upload's duplicate check takes its locks (tests).
     pub fn set_duplicate_hook(&mut self, hook: Hook) {
         self.duplicate_hook = Some(hook);
+    }
+
+    /// Sets the hook called between a backup's copy and its catching up (tests).
+    pub fn set_backup_hook(&mut self, hook: Hook) {
+        self.backup_hook = Some(hook);
     }
 
     /// Starts the background work the store calls for: a re-extraction left unfinished by
@@ -564,6 +577,7 @@ fn routes() -> Routes {
             Key(Admin),
             routes!(reindex::start_reindex, reindex::get_reindex),
         )
+        .with(Key(Admin), routes!(backup::backup))
         .with(Open, routes!(ops::healthz))
         .with(Open, routes!(ops::readyz))
         .with(Key(Admin), routes!(ops::metrics))

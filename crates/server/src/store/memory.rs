@@ -218,4 +218,8 @@ impl Store for InMemoryStore {
         self.lock().state.insert(key.to_string(), value.to_vec());
         Ok(())
     }
+
+    fn states(&self) -> StoreResult<Vec<(String, Vec<u8>)>> {
+        Ok(self.lock().state.clone().into_iter().collect())
+    }
 }

@@ -5,6 +5,7 @@
 //! tests and trials. Writes for one model are atomic and durable when they return: a model is
 //! either fully present (record, signature, files) or absent.
 
+pub mod copy;
 mod memory;
 mod postgres;
 mod sled_store;
@@ -98,6 +99,10 @@ pub enum Derived {
     Preview,
     /// What a partial search picks its candidates by (`salient_core::descriptor::patch::Packed`).
     Patches,
+}
+
+impl Derived {
+    pub const ALL: [Derived; 2] = [Derived::Preview, Derived::Patches];
 }
 
 /// A stored model as the index needs it at start.
@@ -227,6 +232,8 @@ pub trait Store: Send + Sync {
     /// A small value the service keeps between runs (the progress of a re-extraction).
     fn state(&self, key: &str) -> StoreResult<Option<Vec<u8>>>;
     fn set_state(&self, key: &str, value: &[u8]) -> StoreResult<()>;
+    /// Every state value, by key.
+    fn states(&self) -> StoreResult<Vec<(String, Vec<u8>)>>;
     /// The log and locks of a store that other processes share, if it is one.
     fn shared(&self) -> Option<&dyn Shared> {
         None

@@ -864,6 +864,11 @@ impl super::Store for PostgresStore {
         })
     }
 
+    fn states(&self) -> StoreResult<Vec<(String, Vec<u8>)>> {
+        let rows = self.query("SELECT key, value FROM state ORDER BY key", Vec::new())?;
+        Ok(rows.iter().map(|row| (row.get(0), row.get(1))).collect())
+    }
+
     fn shared(&self) -> Option<&dyn Shared> {
         Some(self)
     }

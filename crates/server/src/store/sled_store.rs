@@ -498,4 +498,18 @@ impl super::Store for SledStore {
         self.db.flush()?;
         Ok(())
     }
+
+    fn states(&self) -> StoreResult<Vec<(String, Vec<u8>)>> {
+        self.state
+            .iter()
+            .map(|entry| {
+                let (key, value) = entry?;
+                let key = String::from_utf8(key.to_vec()).map_err(|e| StoreError::Corrupt {
+                    key: "state".into(),
+                    message: e.to_string(),
+                })?;
+                Ok((key, value.to_vec()))
+            })
+            .collect()
+    }
 }
