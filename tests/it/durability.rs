@@ -1,5 +1,7 @@
 //! Crash safety of the store: kill -9 the server in the middle of an ingest, restart it, and
-//! every acknowledged model is there and whole; nothing half-written appears.
+//! every acknowledged model is there and whole; nothing half-written appears. Over
+//! PostgreSQL a second replica runs throughout, never killed: it lists and ranks every
+//! acknowledged model, having learnt of each from the database's change log.
 
 use crate::server;
 use crate::shapes;
@@ -27,6 +29,9 @@ async fn acknowledged_models_survive_a_kill_and_nothing_is_half_written(#[case] 
         .iter()
         .flat_map(|url| ["--store", url.as_str()])
         .collect();
+    let survivor = database
+        .as_ref()
+        .map(|url| Server::start(&dir.path().join("survivor"), &["--store", url]));
     let acknowledged = Arc::new(Mutex::new(BTreeSet::new()));
     let attempted = Arc::new(Mutex::new(BTreeSet::new()));
     let meshes: Vec<Vec<u8>> = (2..6)
@@ -116,6 +121,40 @@ async fn acknowledged_models_survive_a_kill_and_nothing_is_half_written(#[case] 
         .await
         .unwrap();
     assert_eq!(similar.status(), StatusCode::OK);
+    if let Some(survivor) = &survivor {
+        // Where the restarted replica's load stood: the survivor answers once it is there.
+        let ready: Value = reqwest::get(server.at("/readyz"))
+            .await
+            .unwrap()
+            .json()
+            .await
+            .unwrap();
+        let at = ready["position"].as_u64().expect("a position").to_string();
+        let page: Value = client
+            .get(survivor.at("/v1/models?limit=1000"))
+            .header("salient-position", &at)
+            .send()
+            .await
+            .unwrap()
+            .json()
+            .await
+            .unwrap();
+        let seen: BTreeSet<String> = page["models"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|m| m["id"].as_str().unwrap().to_string())
+            .collect();
+        assert_eq!(seen, listed, "the replica that ran throughout is in step");
+        for id in [listed.first().unwrap(), listed.last().unwrap()] {
+            let similar = client
+                .get(survivor.at(&format!("/v1/models/{id}/similar")))
+                .send()
+                .await
+                .unwrap();
+            assert_eq!(similar.status(), StatusCode::OK, "{id}");
+        }
+    }
     // And the original file of each, byte for byte, read from the store itself.
     drop(server);
     let store: Box<dyn Store> = match &database {

@@ -12,6 +12,7 @@
 mod stores;
 mod app;
 mod common;
+mod own_postgres;
 mod server;
 mod shapes;
 mod synthetic;

@@ -13,9 +13,10 @@ use serde_json::Value;
 
 use crate::app::{TestApp, TestResponse};
 use crate::duplicates::{file, model, remeshed, rescaled};
+use crate::own_postgres::OwnServer;
 use crate::server::obj;
 use crate::shapes;
-use crate::stores::{fresh_database_url, OwnServer};
+use crate::stores::fresh_database_url;
 
 /// A replica, in process, on the database `url`, following the others' writes; `set_up`
 /// may change it before it serves.
@@ -401,5 +402,37 @@ postgres_only! {
         std::mem::forget(lock_within(&one, "work"));
         drop(one);
         lock_within(&two, "work");
+    }
+}
+
+postgres_only! {
+    /// The rolling upgrade: a newer release migrates the schema with additions only, which a
+    /// replica of this one, already running, keeps reading and writing; this release started
+    /// anew on that schema is refused, so an old replica never comes back after the upgrade.
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn a_running_replica_keeps_serving_after_a_newer_release_adds_to_the_schema() {
+        let url = fresh_database_url();
+        let old = replica(&url, |_| {});
+        add_all(&old, &meshes("m", &[0.2])).await;
+        // What a next release's migration may do: add tables and columns with defaults.
+        let (client, connection) = tokio_postgres::connect(&url, tokio_postgres::NoTls)
+            .await
+            .unwrap();
+        tokio::spawn(connection);
+        client
+            .batch_execute(
+                "ALTER TABLE models ADD COLUMN added_later text NOT NULL DEFAULT ''; \
+                 CREATE TABLE added_later (id text PRIMARY KEY); \
+                 INSERT INTO refinery_schema_history (version, name, applied_on, checksum) \
+                 SELECT max(version) + 1, 'added_later', now()::text, '0' FROM refinery_schema_history;",
+            )
+            .await
+            .unwrap();
+        let written = add_all(&old, &meshes("n", &[0.3])).await;
+        assert_eq!(read_at(&old, "/v1/models/n0", &written[0].1).await.status(), StatusCode::OK);
+        let deleted = old.delete("/v1/models/m0").send().await;
+        assert_eq!(deleted.status(), StatusCode::NO_CONTENT);
+        let refused = PostgresStore::open(&url).expect_err("a newer schema is refused");
+        assert!(refused.to_string().contains("upgrade salient"), "{refused}");
     }
 }
