@@ -45,7 +45,8 @@ fn open(name: &str, which: &str) -> anyhow::Result<Arc<dyn Store>> {
 pub fn run(args: Args) -> anyhow::Result<()> {
     let from = open(&args.from, "--from")?;
     let to = open(&args.to, "--to")?;
-    if !to.is_empty() {
+    // Listed, not counted: an error reading it is not an empty store.
+    if !to.list(None, 1)?.is_empty() {
         bail!("the store --to already holds models: copy into an empty store");
     }
     let progress = ProgressBar::new(from.len() as u64).with_style(

@@ -183,3 +183,65 @@ postgres_only! {
         assert!(said.contains("already holds models"), "{said}");
     }
 }
+
+postgres_only! {
+    /// The PostgreSQL backup the README gives: `pg_dump` of a served database while an upload
+    /// goes on, `pg_restore` into an empty one, and a replica there lists the models the dump
+    /// holds and ranks them with the same ids and distances.
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn pg_dump_and_pg_restore_move_a_served_database_whole() {
+        let url = fresh_database_url();
+        let store = Arc::new(salient_server::store::PostgresStore::open(&url).unwrap());
+        let app = TestApp::build(Config::default(), store, None);
+        for (id, radius) in [("m0", 0.2), ("m1", 0.3), ("m2", 0.4)] {
+            let added = app.add(&format!("id={id}"), "model/obj", tube(radius)).await;
+            assert_eq!(added.status(), StatusCode::CREATED);
+        }
+        let dump = tempfile::tempdir().unwrap();
+        let file = dump.path().join("salient.dump");
+        let dumping = {
+            let (url, file) = (url.clone(), file.clone());
+            tokio::task::spawn_blocking(move || {
+                Command::new(crate::own_postgres::program("pg_dump"))
+                    .args(["--format=custom", "--file"])
+                    .arg(&file)
+                    .arg(&url)
+                    .status()
+                    .expect("pg_dump runs")
+            })
+        };
+        let (dumped, added) = tokio::join!(dumping, app.add("id=m3", "model/obj", tube(0.5)));
+        assert!(dumped.unwrap().success());
+        assert_eq!(added.status(), StatusCode::CREATED);
+
+        let restored_url = fresh_database_url();
+        let restored = Command::new(crate::own_postgres::program("pg_restore"))
+            .args(["--no-owner", "--dbname", &restored_url])
+            .arg(&file)
+            .status()
+            .expect("pg_restore runs");
+        assert!(restored.success());
+        let store = Arc::new(salient_server::store::PostgresStore::open(&restored_url).unwrap());
+        let again = TestApp::build(Config::default(), store, None);
+        let listed = again.listed_ids().await;
+        // The dump is one snapshot: before the upload, or after it.
+        let before: BTreeSet<String> = ["m0", "m1", "m2"].map(String::from).into();
+        assert!(listed == before || listed == app.listed_ids().await, "{listed:?}");
+        for id in &listed {
+            let path = format!("/v1/models/{id}/similar?k=10");
+            let (ours, theirs) = (again.get_json(&path).await, app.get_json(&path).await);
+            // Ids and distances of the models both hold (ranks move with a model the dump
+            // left out).
+            let kept = |ranked: &Value| -> Vec<(Value, Value)> {
+                ranked["results"]
+                    .as_array()
+                    .unwrap()
+                    .iter()
+                    .filter(|r| listed.contains(r["id"].as_str().unwrap()))
+                    .map(|r| (r["id"].clone(), r["distance"].clone()))
+                    .collect()
+            };
+            assert_eq!(kept(&ours), kept(&theirs), "{id}");
+        }
+    }
+}

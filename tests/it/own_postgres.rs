@@ -46,13 +46,18 @@ impl Drop for OwnServer {
     }
 }
 
-/// Runs `.ci/postgres ACTION DIR`; returns what it printed.
+/// The wheel's program `name` (`pg_dump`, `pg_restore`).
+pub fn program(name: &str) -> std::path::PathBuf {
+    std::path::PathBuf::from(ci_postgres("bin", std::path::Path::new(""))).join(name)
+}
+
+/// Runs `.ci/postgres ACTION DIR` (DIR left out when empty); returns what it printed.
 fn ci_postgres(action: &str, dir: &std::path::Path) -> String {
     let script = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join(".ci/postgres");
     let output = std::process::Command::new("python3")
         .arg(script)
         .arg(action)
-        .arg(dir)
+        .args((!dir.as_os_str().is_empty()).then_some(dir))
         .output()
         .expect("python3 runs .ci/postgres");
     assert!(

@@ -240,8 +240,8 @@ async fn a_position_on_a_store_of_its_own_is_checked_and_not_waited_for() {
 }
 
 postgres_only! {
-    /// PostgreSQL stopped under two replicas: they still list, read records and rank uploads
-    /// from memory, refuse a write (and `similar`, which reads the stored model's signature)
+    /// PostgreSQL stopped under two replicas: they still list, read records, and rank
+    /// uploads and stored models (from their own copies of the signatures), refuse a write
     /// with 503 and `Retry-After`, and say so on `/readyz`, which stays 200 (a balancer keeps
     /// them). Once it is back they reconnect, and a write on one is served by the other.
     #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -275,9 +275,11 @@ postgres_only! {
             assert_eq!(ranked.json()["results"][0]["id"], "m0");
             assert_eq!(app.listed_ids().await.len(), 2);
             assert_eq!(app.get_json("/v1/models/m1").await["id"], "m1");
-            let similar = app.get("/v1/models/m0/similar?k=2").send().await;
-            assert_eq!(similar.status(), StatusCode::SERVICE_UNAVAILABLE);
-            assert_eq!(similar.json()["error"]["code"], "store_unavailable");
+            let similar = app.get_json("/v1/models/m0/similar?k=2").await;
+            assert_eq!(similar["results"][0]["id"], "m1", "{similar}");
+            let file = app.get("/v1/models/m0/file").send().await;
+            assert_eq!(file.status(), StatusCode::SERVICE_UNAVAILABLE);
+            assert_eq!(file.json()["error"]["code"], "store_unavailable");
         }
         let refused = b.add("id=n0", "model/obj", obj(&shapes::tube(0.4, 20, 16))).await;
         assert_eq!(refused.status(), StatusCode::SERVICE_UNAVAILABLE);

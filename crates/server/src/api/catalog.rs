@@ -8,11 +8,13 @@
 //! entries are kept in shared chunks, so a new snapshot copies pointers and a chunk or two.
 
 use std::collections::BTreeSet;
+use std::io;
 use std::path::PathBuf;
 use std::sync::Arc;
 
 use arc_swap::ArcSwap;
 
+use super::copies::{Copies, Spot};
 use crate::api::error::AppError;
 use crate::model::{ModelId, ModelRecord};
 use salient_core::params::{Params, SimilarityParams};
@@ -24,23 +26,67 @@ use salient_core::signature::Signature;
 pub struct Snapshot {
     pub records: imbl::OrdMap<ModelId, Arc<ModelRecord>>,
     pub index: Index,
+    /// This replica's copies of the stored signatures, on a shared store ([`copies`]).
+    copies: Option<Arc<Copies>>,
+    spots: imbl::OrdMap<ModelId, Spot>,
+}
+
+/// What the catalogue keeps of a model beside its record, made before the store is written
+/// ([`Catalog::hold`]).
+pub struct Held {
+    row: Row,
+    copy: Option<Spot>,
 }
 
 impl Snapshot {
     /// An empty catalogue whose index shelves light field descriptors in `shelf_dir`, or
-    /// in the system's temporary folder.
-    pub fn empty(similarity: SimilarityParams, shelf_dir: Option<PathBuf>) -> Self {
+    /// in the system's temporary folder, and that keeps copies of signatures in `copies`.
+    pub fn empty(
+        similarity: SimilarityParams,
+        shelf_dir: Option<PathBuf>,
+        copies: Option<Arc<Copies>>,
+    ) -> Self {
         Self {
             records: imbl::OrdMap::new(),
             index: Index::shelved_in(similarity, shelf_dir.unwrap_or_else(std::env::temp_dir)),
+            copies,
+            spots: imbl::OrdMap::new(),
         }
     }
 
-    /// Adds or replaces a model, with its index entry made by [`Catalog::row`] or this
-    /// snapshot's index.
-    pub fn put(&mut self, record: ModelRecord, row: Row) {
-        self.index.put(row);
+    /// The index entry of model `id` (its light field shelved) and the copy of its stored
+    /// signature `bytes`, if this catalogue keeps copies.
+    pub fn hold(&self, id: &ModelId, signature: &Signature, bytes: &[u8]) -> io::Result<Held> {
+        Ok(Held {
+            row: self.index.row(id.as_str(), signature)?,
+            copy: self.copies.as_ref().map(|c| c.put(bytes)).transpose()?,
+        })
+    }
+
+    /// Adds or replaces a model with what [`Snapshot::hold`] made of it.
+    pub fn put(&mut self, record: ModelRecord, held: Held) {
+        self.index.put(held.row);
+        match held.copy {
+            Some(spot) => self.spots.insert(record.id.clone(), spot),
+            None => self.spots.remove(&record.id),
+        };
         self.records.insert(record.id.clone(), Arc::new(record));
+    }
+
+    /// This replica's copy of model `id`'s stored signature, if it keeps copies.
+    pub fn copy_of(&self, id: &ModelId) -> Option<io::Result<Vec<u8>>> {
+        let (copies, spot) = (self.copies.as_ref()?, self.spots.get(id)?);
+        Some(copies.get(*spot))
+    }
+
+    /// Whether this replica keeps a copy of model `id`'s stored signature.
+    pub fn keeps_copy(&self, id: &ModelId) -> bool {
+        self.copies.is_some() && self.spots.contains_key(id)
+    }
+
+    /// The file this catalogue keeps its copies of signatures in, if any.
+    pub fn copies(&self) -> Option<Arc<Copies>> {
+        self.copies.clone()
     }
 
     /// The ids of models whose signature is stale under `params`, in id order, after `after`.
@@ -111,17 +157,23 @@ impl Catalog {
         len
     }
 
-    /// The index entry of a model about to be stored: made first, since shelving its light
-    /// field descriptor may fail (a full disk) and the store must then stay unchanged.
-    pub fn row(&self, id: &ModelId, signature: &Signature) -> Result<Row, AppError> {
-        let index = &self.current.load().index;
-        index.row(id.as_str(), signature).map_err(AppError::index)
+    /// What the catalogue keeps of a model about to be stored, its signature `bytes` as
+    /// stored: made first, since shelving may fail (a full disk) and the store must then
+    /// stay unchanged.
+    pub fn hold(
+        &self,
+        id: &ModelId,
+        signature: &Signature,
+        bytes: &[u8],
+    ) -> Result<Held, AppError> {
+        let snapshot = self.current.load();
+        snapshot.hold(id, signature, bytes).map_err(AppError::index)
     }
 
     /// Adds or replaces a model; returns the number of models.
-    pub fn put(&self, record: ModelRecord, row: Row) -> usize {
+    pub fn put(&self, record: ModelRecord, held: Held) -> usize {
         self.note([record.id.clone()]);
-        self.update(|s| s.put(record, row))
+        self.update(|s| s.put(record, held))
     }
 
     /// Replaces a model's record, its signature unchanged.
@@ -145,6 +197,7 @@ impl Catalog {
         self.update(|s| {
             s.index.remove(id.as_str());
             s.records.remove(id);
+            s.spots.remove(id);
         })
     }
 }

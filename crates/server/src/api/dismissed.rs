@@ -122,7 +122,7 @@ async fn change(
     change: impl FnOnce(&mut BTreeMap<(String, String), Dismissal>) -> bool,
 ) -> Result<bool, AppError> {
     // Another replica's change is seen and not overwritten.
-    let _across = app.hold_shared("dismissed").await?;
+    let _across = app.hold_shared(super::Across::Dismissed).await?;
     let _write = app.writes.lock().await;
     let mut next = app.dismissed.0.read().expect("never poisoned").clone();
     if !change(&mut next) {

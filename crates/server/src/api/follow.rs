@@ -182,11 +182,8 @@ fn apply_next(app: &App, after: u64) -> Result<Option<u64>, AppError> {
     for id in &models {
         apply_model(app, id)?;
     }
-    if states.contains(super::dismissed::STATE_KEY) {
-        app.dismissed.reload(store)?;
-    }
-    if states.contains(super::reindex::STATE_KEY) {
-        app.reindex.reload(store)?;
+    for key in &states {
+        app.reload_state(key)?;
     }
     if states.contains(EXTRACTION_KEY) {
         let agreed = store.state(EXTRACTION_KEY)? == Some(app.config.params.extraction_key());
@@ -204,8 +201,8 @@ fn apply_model(app: &App, id: &ModelId) -> Result<(), AppError> {
     match app.store.model(id.as_str())? {
         Some(loaded) => {
             let signature = Signature::from_bytes(&loaded.signature)?;
-            let row = app.catalog.row(id, &signature)?;
-            app.catalog.put(loaded.record, row);
+            let held = app.catalog.hold(id, &signature, &loaded.signature)?;
+            app.catalog.put(loaded.record, held);
         }
         None => {
             app.catalog.remove(id);
@@ -220,10 +217,13 @@ fn reload(app: &App, shared: &dyn Shared) -> Result<u64, AppError> {
     tracing::warn!("this replica fell behind the store's change log; loading the store again");
     // Read first: changes committed during the load are applied again after it.
     let position = shared.head()?;
-    let (snapshot, ..) = super::load(&app.config, app.store.as_ref())
+    let copies = app.catalog.snapshot().copies();
+    let (snapshot, ..) = super::load(&app.config, app.store.as_ref(), copies)
         .map_err(|e| AppError::Internal(e.to_string()))?;
     app.catalog.replace(snapshot);
-    app.dismissed.reload(app.store.as_ref())?;
+    for (key, _) in app.store.states()? {
+        app.reload_state(&key)?;
+    }
     Ok(position)
 }
 

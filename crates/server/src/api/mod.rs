@@ -6,6 +6,7 @@ pub mod auth;
 mod backup;
 mod catalog;
 pub mod config;
+mod copies;
 pub mod dismissed;
 pub mod duplicates;
 pub mod error;
@@ -43,7 +44,7 @@ use tower_http::trace::TraceLayer;
 use utoipa::OpenApi;
 use utoipa_axum::router::{OpenApiRouter, UtoipaMethodRouter};
 
-use crate::model::Upload;
+use crate::model::{ModelId, Upload};
 use crate::store::{Store, StoreError};
 use auth::{Access, AccessTable, KeyError, KeySet};
 use catalog::{Catalog, Snapshot};
@@ -118,6 +119,28 @@ pub struct App {
     follower: Option<follow::Follower>,
 }
 
+/// A lock every replica of a shared store takes around a check-then-write
+/// ([`App::hold_shared`]).
+#[derive(Debug, Clone, Copy)]
+enum Across {
+    /// An upload that rejects duplicates.
+    Duplicates,
+    /// An edit of a model's fields, or the re-extraction's write of one.
+    Edits,
+    /// A change of the dismissed pairs.
+    Dismissed,
+}
+
+impl Across {
+    fn name(self) -> &'static str {
+        match self {
+            Across::Duplicates => "on_duplicate",
+            Across::Edits => "model_edits",
+            Across::Dismissed => "dismissed",
+        }
+    }
+}
+
 /// Starting the service failed.
 #[derive(Debug, thiserror::Error)]
 pub enum StartError {
@@ -148,9 +171,17 @@ const LOAD_BATCH: usize = 1024;
 
 /// The catalogue of every stored model, and how many signatures are stale for their
 /// parameters and for a missing descriptor.
-fn load(config: &Config, store: &dyn Store) -> Result<(Snapshot, usize, usize), StartError> {
+fn load(
+    config: &Config,
+    store: &dyn Store,
+    copies: Option<Arc<copies::Copies>>,
+) -> Result<(Snapshot, usize, usize), StartError> {
     use rayon::prelude::*;
-    let mut snapshot = Snapshot::empty(config.params.similarity.clone(), config.shelf_dir.clone());
+    let mut snapshot = Snapshot::empty(
+        config.params.similarity.clone(),
+        config.shelf_dir.clone(),
+        copies,
+    );
     let (mut stale_parameters, mut missing_descriptor) = (0, 0);
     std::thread::scope(|scope| {
         let (batches, received) = std::sync::mpsc::sync_channel(1);
@@ -170,7 +201,7 @@ fn load(config: &Config, store: &dyn Store) -> Result<(Snapshot, usize, usize), 
         });
         for batch in received {
             let batch = batch?;
-            let index = &snapshot.index;
+            let held = &snapshot;
             let rows = batch
                 .into_par_iter()
                 .map(|loaded| {
@@ -180,8 +211,8 @@ fn load(config: &Config, store: &dyn Store) -> Result<(Snapshot, usize, usize), 
                             source,
                         }
                     })?;
-                    let row = index
-                        .row(loaded.record.id.as_str(), &signature)
+                    let row = held
+                        .hold(&loaded.record.id, &signature, &loaded.signature)
                         .map_err(StartError::Shelf)?;
                     Ok((loaded.record, row, signature.staleness(&config.params)))
                 })
@@ -219,7 +250,19 @@ impl App {
             }
             None => None,
         };
-        let (snapshot, stale_parameters, missing_descriptor) = load(&config, store.as_ref())?;
+        // A replica of a shared store ranks stored models from copies of their signatures,
+        // so that it ranks while the database is down.
+        let copies = match store.shared() {
+            Some(_) => {
+                let dir = config.shelf_dir.clone().unwrap_or_else(std::env::temp_dir);
+                Some(Arc::new(
+                    copies::Copies::create_in(&dir).map_err(StartError::Shelf)?,
+                ))
+            }
+            None => None,
+        };
+        let (snapshot, stale_parameters, missing_descriptor) =
+            load(&config, store.as_ref(), copies)?;
         pool::release_free_memory();
         let models = snapshot.records.len();
         let catalog = Catalog::new(snapshot);
@@ -424,6 +467,37 @@ impl App {
         .map_err(|e| AppError::Internal(format!("ranking failed: {e}")))
     }
 
+    /// Reads again a state value another replica changed (`follow`).
+    fn reload_state(&self, key: &str) -> Result<(), StoreError> {
+        match key {
+            dismissed::STATE_KEY => self.dismissed.reload(self.store.as_ref()),
+            reindex::STATE_KEY => self.reindex.reload(self.store.as_ref()),
+            _ => Ok(()),
+        }
+    }
+
+    /// The stored signature of model `id`: this replica's copy when it keeps one (on a shared
+    /// store, so that `similar` ranks while the database is down), else the store's.
+    async fn stored_signature(&self, id: &ModelId) -> Result<Option<Signature>, AppError> {
+        let snapshot = self.catalog.snapshot();
+        if !snapshot.keeps_copy(id) {
+            let id = id.clone();
+            return self
+                .with_store(move |store| store.decoded_signature(id.as_str()))
+                .await;
+        }
+        let id = id.clone();
+        tokio::task::spawn_blocking(move || {
+            let bytes = snapshot
+                .copy_of(&id)
+                .expect("kept, as checked above")
+                .map_err(AppError::index)?;
+            Ok(Some(Signature::from_bytes(&bytes)?))
+        })
+        .await
+        .map_err(|e| AppError::Internal(format!("reading a signature failed: {e}")))?
+    }
+
     /// Runs a store operation on a blocking thread, in the request's tracing span.
     async fn with_store<T: Send + 'static>(
         &self,
@@ -447,8 +521,9 @@ impl App {
     /// takes.
     async fn hold_shared(
         self: &Arc<Self>,
-        name: &'static str,
+        lock: Across,
     ) -> Result<Option<Box<dyn Send>>, AppError> {
+        let name = lock.name();
         let lock = self
             .with_store(move |store| store.shared().map(|s| s.lock(name)).transpose())
             .await?;

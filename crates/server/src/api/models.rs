@@ -98,7 +98,7 @@ pub async fn add_model(
     let signature = app.extract(upload.clone()).await?;
     let mut record = ModelRecord::new(id, wanted, &upload, &signature);
     let bytes = signature.to_bytes();
-    let row = app.catalog.row(&record.id, &signature)?;
+    let held = app.catalog.hold(&record.id, &signature, &bytes)?;
 
     let _gate = match q.on_duplicate.unwrap_or_default() {
         OnDuplicate::Allow => None,
@@ -109,7 +109,7 @@ pub async fn add_model(
                     .map_err(|e| AppError::Internal(format!("duplicate hook failed: {e}")))?;
             }
             let gate = app.duplicate_gate.lock().await;
-            let across = app.hold_shared("on_duplicate").await?;
+            let across = app.hold_shared(super::Across::Duplicates).await?;
             let found =
                 duplicates_of(&app, upload.clone(), signature, Some(record.id.clone())).await?;
             if let Some(first) = found
@@ -129,7 +129,7 @@ pub async fn add_model(
     if let Some(previous) = &previous {
         record.created_unix = previous.created_unix;
     }
-    let models = app.catalog.put(record.clone(), row);
+    let models = app.catalog.put(record.clone(), held);
     app.set_model_count(models);
     // The upload is let go before the background patches read it again from the store: a
     // print file of hundreds of megabytes is not held twice.
@@ -348,7 +348,7 @@ pub async fn patch_model(
     let patch: ModelPatch = serde_json::from_value(serde_json::Value::Object(body))
         .map_err(|e| AppError::bad_request("invalid_json", e.to_string()))?;
     // Another replica's edit of the same model is seen and not overwritten.
-    let _across = app.hold_shared("model_edits").await?;
+    let _across = app.hold_shared(super::Across::Edits).await?;
     let _write = app.writes.lock().await;
     let Some(mut record) = app
         .catalog

@@ -255,6 +255,12 @@ async fn reextract(app: &Arc<App>, id: &ModelId) -> Result<(), String> {
         .map_err(hidden)?
         .map_err(|e| e.to_string())?;
 
+    // Under the lock of edits of a model's fields: the record written is the current one,
+    // not one another replica changed meanwhile.
+    let _across = app
+        .hold_shared(super::Across::Edits)
+        .await
+        .map_err(hidden)?;
     let _write = app.writes.lock().await;
     let Some(current) = app.catalog.snapshot().records.get(id).cloned() else {
         return Ok(()); // deleted while extracting
@@ -265,13 +271,13 @@ async fn reextract(app: &Arc<App>, id: &ModelId) -> Result<(), String> {
     let mut record = (*current).clone();
     record.describe(&signature);
     let (stored, bytes) = (record.clone(), signature.to_bytes());
-    let row = app.catalog.row(id, &signature).map_err(hidden)?;
+    let held = app.catalog.hold(id, &signature, &bytes).map_err(hidden)?;
     let updated = app
         .with_store(move |store| store.update_model(&stored, &bytes))
         .await
         .map_err(hidden)?;
     if updated {
-        app.catalog.put(record, row);
+        app.catalog.put(record, held);
         // Its patches were made from the mesh as the old parameters prepared it.
         app.patcher.stored(id.clone());
     }

@@ -619,9 +619,8 @@ pub async fn similar(
     }
     let q = WholeQuery::of(&app, q)?;
     let clock = Instant::now();
-    let stored = id.clone();
     let signature = app
-        .with_store(move |store| store.decoded_signature(stored.as_str()))
+        .stored_signature(&id)
         .await?
         .map(Arc::new)
         .ok_or_else(|| no_model(&id))?;
