@@ -409,6 +409,14 @@ fn similar(
     }))
 }
 
+/// Waits until the files a start wrote (the light-field shelf, a replica's copies of the
+/// signatures: hundreds of megabytes at 100 000 models) are on disk: their writeback would
+/// otherwise share the two cores with the first measurements.
+fn settle() {
+    let synced = Command::new("sync").status().expect("sync runs");
+    assert!(synced.success(), "sync");
+}
+
 /// Two replicas started one after the other on the PostgreSQL database `url`: their start-up,
 /// `method`'s `similar` on the first and held-out uploads on the second while both serve, and
 /// how long a write acknowledged by one takes to be served by the other.
@@ -428,6 +436,7 @@ fn replicas(
         server
     });
     eprintln!("replicas with {size} models started in {startup_s:?} s");
+    settle();
     let [a, b] = &replicas;
     let stored = report(
         size,
@@ -579,6 +588,7 @@ fn main() {
         let clock = Instant::now();
         let server = Server::start(&data, &[]);
         let startup_s = clock.elapsed().as_secs_f64();
+        settle();
         let rss_mib = server.resident_mib().unwrap_or(f64::NAN);
         eprintln!(
             "server with {size} models: {rss_mib:.0} MiB resident, started in {startup_s:.1} s"
