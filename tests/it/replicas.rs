@@ -8,8 +8,9 @@ use std::time::Duration;
 use axum::http::StatusCode;
 use salient_core::mesh::write::Export;
 use salient_server::api::{follow, App, Config};
-use salient_server::store::{Change, Changes, PostgresStore, Store};
+use salient_server::store::{Change, Changes, Derived, PostgresStore, Store};
 use serde_json::Value;
+use tokio::sync::watch;
 
 use crate::app::{TestApp, TestResponse};
 use crate::duplicates::{file, model, remeshed, rescaled};
@@ -371,6 +372,76 @@ postgres_only! {
             .filter(|(_, change)| matches!(change, Change::Model(_)))
             .count();
         assert_eq!(updates, 3, "{changes:?}");
+    }
+}
+
+/// A replica that stores `ids` and is killed before it makes their patches (its background
+/// work never started); waits for `survivor` to have applied the writes.
+async fn stored_by_a_killed_replica(url: &str, survivor: &TestApp, ids: &str) {
+    let killed = replica(url, |_| {});
+    let written = add_all(&killed, &meshes(ids, &[0.2, 0.3])).await;
+    drop(killed);
+    let (id, at) = written.last().unwrap();
+    let applied = read_at(survivor, &format!("/v1/models/{id}"), at).await;
+    assert_eq!(applied.status(), StatusCode::OK);
+}
+
+/// A survivor replica that counts the models lacking patches every second, leaving those
+/// stored in the last `grace_secs`; its background work started and its first count done.
+async fn counting_every_second(
+    url: &str,
+    grace_secs: u64,
+) -> (TestApp, watch::Receiver<Option<usize>>) {
+    let survivor = replica(url, |app| {
+        app.config.patch_recount_secs = 1;
+        app.config.patch_grace_secs = grace_secs;
+    });
+    let mut pending = survivor.app.patches_pending();
+    survivor.app.start_background();
+    pending.wait_for(|p| *p == Some(0)).await.unwrap();
+    (survivor, pending)
+}
+
+fn patches_made(url: &str, ids: &[&str]) -> Vec<bool> {
+    let store = PostgresStore::open(url).unwrap();
+    ids.iter()
+        .map(|id| store.derived(Derived::Patches, id).unwrap().is_some())
+        .collect()
+}
+
+postgres_only! {
+    /// A replica killed before it made its writes' patches leaves them to another replica's
+    /// next count.
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn patches_a_killed_replica_left_are_made_by_the_next_count() {
+        let url = fresh_database_url();
+        let (survivor, mut pending) = counting_every_second(&url, 0).await;
+        stored_by_a_killed_replica(&url, &survivor, "k").await;
+        tokio::time::timeout(Duration::from_secs(60), async {
+            while patches_made(&url, &["k0", "k1"]) != [true, true] {
+                pending.changed().await.unwrap();
+            }
+        })
+        .await
+        .expect("the survivor makes them");
+    }
+}
+
+postgres_only! {
+    /// A count leaves models stored within the grace to the replica that stored them: a
+    /// living one is making them (a killed one's wait for the first count after it).
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn a_count_leaves_models_stored_within_the_grace() {
+        let url = fresh_database_url();
+        let (survivor, mut pending) = counting_every_second(&url, 3600).await;
+        stored_by_a_killed_replica(&url, &survivor, "k").await;
+        // Two counts announced after the survivor applied the writes: the second began after.
+        pending.borrow_and_update();
+        for _ in 0..2 {
+            pending.changed().await.unwrap();
+        }
+        assert_eq!(*pending.borrow(), Some(0));
+        assert_eq!(patches_made(&url, &["k0", "k1"]), [false, false]);
     }
 }
 

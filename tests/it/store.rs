@@ -323,6 +323,19 @@ fn every_store_keeps_models_files_and_derived_data_as_the_service_expects(#[case
         store.derived(Derived::Preview, "two").unwrap().as_deref(),
         Some(&b"p"[..])
     );
+    // The ids of the entries of one layout (their first bytes), without the entries.
+    store
+        .put_derived(Derived::Preview, "one", a.content_hash(), b"q")
+        .unwrap();
+    let of_layout = |prefix: &[u8]| -> Vec<String> {
+        store
+            .derived_ids(Derived::Preview, prefix)
+            .map(|id| id.unwrap().to_string())
+            .collect()
+    };
+    assert_eq!(of_layout(b"p"), ["two"]);
+    assert_eq!(of_layout(b""), ["one", "two"]);
+    assert!(of_layout(b"pp").is_empty());
 
     // Replacing "two" with other content keeps "one"'s file and drops "two"'s derived data.
     let replaced = store.put(&record("two", &b), b"sig3", &b).unwrap();

@@ -264,7 +264,7 @@ pub struct Packed {
 pub type PackedPiece = [u8; LEN];
 
 /// The first byte of a stored [`Packed`]: entries of another layout or encoding are made again.
-const PACKED_LAYOUT: u8 = 1;
+pub const PACKED_LAYOUT: u8 = 1;
 const DISTRIBUTION_STEPS: f32 = 255.0;
 const SPREAD_STEPS: f32 = 127.0;
 

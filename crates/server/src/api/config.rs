@@ -77,6 +77,12 @@ pub struct Config {
     /// Where `POST /v1/admin/backup` writes its snapshots of a sled store (each a store
     /// folder of its own); none: backups are not offered.
     pub backup_dir: Option<PathBuf>,
+    /// On a store shared by replicas, how often one of them counts again the models that lack
+    /// patches: those a replica stored and was stopped (or killed) before it made them.
+    pub patch_recount_secs: u64,
+    /// That count leaves out models stored this recently: the replica that stored them is
+    /// making them. One stored within it by a replica killed since waits for the next count.
+    pub patch_grace_secs: u64,
 }
 
 /// A value that must not be printed: its `Debug` says only that it is there.
@@ -122,6 +128,8 @@ impl Default for Config {
             position_wait_ms: 5000,
             adopt_extraction: false,
             backup_dir: None,
+            patch_recount_secs: 600,
+            patch_grace_secs: 600,
         }
     }
 }

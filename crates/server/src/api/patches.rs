@@ -7,24 +7,24 @@
 //! layout). Meanwhile a model without patches is left to the fit
 //! ([`salient_core::rank::Query::Part`]).
 
-use std::collections::{BTreeSet, HashSet};
+use std::collections::{BTreeMap, HashSet};
 use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
 
 use prometheus_client::metrics::gauge::Gauge;
 use tokio::sync::{watch, Notify};
 
+use super::error::AppError;
 use super::App;
-use crate::model::ModelId;
+use crate::model::{now_unix, ModelId};
 use crate::store::Derived;
-use salient_core::descriptor::patch::Packed;
+use salient_core::descriptor::patch::PACKED_LAYOUT;
 use salient_core::mesh::load_bytes;
 use salient_core::params::Limits;
 use salient_core::partial::stored_patches;
 
 /// The name of the claim on counting the models that lack patches, on a shared store.
 const CLAIM: &str = "patches";
-/// How often a replica without that claim tries for it again.
-const TRY_CLAIM_EVERY: std::time::Duration = std::time::Duration::from_secs(30);
 
 /// The models whose patches are to be made.
 pub struct Patcher {
@@ -38,8 +38,17 @@ pub struct Patcher {
 
 #[derive(Default)]
 struct Queue {
-    lacking: BTreeSet<ModelId>,
+    lacking: BTreeMap<ModelId, Why>,
     working: bool,
+}
+
+/// Why a model's patches are to be made, which says whether to look for them first.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Why {
+    /// This replica stored or re-described it: whatever patches it has are of its old upload.
+    Stored,
+    /// A count found none: another replica may have made them since.
+    Counted,
 }
 
 impl Patcher {
@@ -55,7 +64,7 @@ impl Patcher {
     /// A model was stored or replaced: its patches are to be made.
     pub fn stored(&self, id: ModelId) {
         self.change(|queue| {
-            queue.lacking.insert(id);
+            queue.lacking.insert(id, Why::Stored);
         });
         self.wake.notify_one();
     }
@@ -80,10 +89,13 @@ impl Patcher {
         out
     }
 
-    /// The start's count: every model without patches is pending.
+    /// A count: every model it found without patches is pending (each count is announced,
+    /// even one that changes nothing).
     fn counted(&self, lacking: impl IntoIterator<Item = ModelId>) {
         let mut queue = self.queue.lock().expect("never poisoned");
-        queue.lacking.extend(lacking);
+        for id in lacking {
+            queue.lacking.entry(id).or_insert(Why::Counted);
+        }
         let pending = queue.lacking.len() + usize::from(queue.working);
         self.pending.send_replace(Some(pending));
         self.gauge.set(pending as i64);
@@ -98,30 +110,27 @@ pub fn start(app: &Arc<App>) {
 
 async fn run(app: Arc<App>) {
     let patcher = &app.patcher;
-    // On a store shared by replicas, one counts and makes the models lacking patches (those
-    // stored by an earlier release, or by a replica that stopped before making them),
-    // holding a claim until its queue is empty; the others make those of their own writes
-    // and try for the claim again now and then.
-    let mut counted = false;
+    // A store of its own is counted once, at start: every model stored since is queued
+    // here. On a store shared by replicas, each makes those of its own writes, and one at a
+    // time counts and makes the rest (stored by an earlier release, or by a replica stopped
+    // before it made them), holding a claim until its queue is empty; every replica tries
+    // for that claim again every `patch_recount_secs`.
+    let shared = app.store.shared().is_some();
+    let recount = Duration::from_secs(app.config.patch_recount_secs);
+    let mut next_count = Some(Instant::now());
     let mut claim = None;
     loop {
-        if !counted {
-            match app
-                .with_store(|store| store.shared().map(|s| s.try_lock(CLAIM)).transpose())
-                .await
-            {
-                Ok(None) => counted = true,
-                Ok(Some(Some(held))) => (claim, counted) = (Some(held), true),
-                Ok(Some(None)) => patcher.counted([]),
-                Err(error) => tracing::warn!(%error, "cannot claim the patches to make"),
-            }
-            if counted {
-                match lacking(&app).await {
-                    Ok(lacking) => patcher.counted(lacking),
-                    Err(error) => {
-                        tracing::error!(%error, "cannot read the stored patches; partial search keeps to the fit");
-                        return;
-                    }
+        if next_count.is_some_and(|at| at <= Instant::now()) {
+            next_count = shared.then(|| Instant::now() + recount);
+            match count(&app, claim.is_some()).await {
+                Ok(Counted::Lacking(held, lacking)) => {
+                    claim = claim.or(held);
+                    patcher.counted(lacking);
+                }
+                Ok(Counted::Elsewhere) => patcher.counted([]),
+                Err(error) => {
+                    tracing::warn!(%error, "cannot count the models without patches; partial search fits them by their features");
+                    next_count = Some(Instant::now() + recount);
                 }
             }
         }
@@ -130,52 +139,87 @@ async fn run(app: Arc<App>) {
             queue.working = next.is_some();
             next
         });
-        let Some(id) = next else {
-            // Made: another replica may count what it left.
+        let Some((id, why)) = next else {
+            // Made: another replica may count what this one left.
             drop(claim.take());
-            if counted {
-                patcher.wake.notified().await;
-            } else {
-                let _ = tokio::time::timeout(TRY_CLAIM_EVERY, patcher.wake.notified()).await;
+            match next_count {
+                Some(at) => {
+                    let _ = tokio::time::timeout_at(at.into(), patcher.wake.notified()).await;
+                }
+                None => patcher.wake.notified().await,
             }
             continue;
         };
         app.pool.idle().await;
-        if !make(&app, &id).await {
+        if !make(&app, &id, why).await {
             tracing::warn!(%id, "cannot make a model's patches; partial search fits it by its features");
         }
         patcher.change(|queue| queue.working = false);
     }
 }
 
-/// The models of the catalogue whose stored patches are missing or of another layout.
-async fn lacking(app: &Arc<App>) -> Result<Vec<ModelId>, super::error::AppError> {
+/// What a count found.
+enum Counted {
+    /// The models without patches (with the claim, on a shared store, unless already held).
+    Lacking(Option<Box<dyn Send>>, Vec<ModelId>),
+    /// Another replica holds the claim: it counts.
+    Elsewhere,
+}
+
+/// The models of the catalogue whose stored patches are missing or of another layout. On a
+/// shared store, under the claim (`holding` it already, or taken now), and leaving out those
+/// stored in the last `patch_grace_secs`, which the replica that stored them is making.
+async fn count(app: &Arc<App>, holding: bool) -> Result<Counted, AppError> {
+    let held = if holding {
+        None
+    } else {
+        match app
+            .with_store(|store| store.shared().map(|s| s.try_lock(CLAIM)).transpose())
+            .await?
+        {
+            Some(None) => return Ok(Counted::Elsewhere),
+            held => held.flatten(),
+        }
+    };
     let made = app
         .with_store(|store| {
             store
-                .all_derived(Derived::Patches)
-                .filter_map(|entry| match entry {
-                    Ok((id, bytes)) => Packed::from_bytes(&bytes).map(|_| Ok(id)),
-                    Err(e) => Some(Err(e)),
-                })
+                .derived_ids(Derived::Patches, &[PACKED_LAYOUT])
                 .collect::<Result<HashSet<ModelId>, _>>()
         })
         .await?;
+    let recent = match app.store.shared() {
+        Some(_) => now_unix().saturating_sub(app.config.patch_grace_secs),
+        None => u64::MAX,
+    };
     let snapshot = app.catalog.snapshot();
-    Ok(snapshot
+    let lacking = snapshot
         .records
-        .keys()
-        .filter(|id| !made.contains(*id))
-        .cloned()
-        .collect())
+        .iter()
+        .filter(|(id, record)| !made.contains(*id) && record.updated_unix < recent)
+        .map(|(id, _)| id.clone())
+        .collect();
+    Ok(Counted::Lacking(held, lacking))
 }
 
 /// Makes and keeps the patches of model `id` from its stored upload; true when made, or when
-/// the model was deleted or replaced meanwhile (a replaced one is queued again).
-async fn make(app: &Arc<App>, id: &ModelId) -> bool {
+/// the model was deleted or replaced meanwhile (a replaced one is queued again), or when a
+/// count's model was made by another replica since.
+async fn make(app: &Arc<App>, id: &ModelId, why: Why) -> bool {
     let Some(record) = app.catalog.snapshot().records.get(id).cloned() else {
         return true;
     };
+    if why == Why::Counted {
+        let key = id.clone();
+        let made = app
+            .with_store(move |store| store.derived(Derived::Patches, key.as_str()))
+            .await;
+        if let Ok(Some(entry)) = made {
+            if entry.first() == Some(&PACKED_LAYOUT) {
+                return true;
+            }
+        }
+    }
     let key = id.clone();
     let Ok(Some(upload)) = app
         .with_store(move |store| store.upload(key.as_str()))

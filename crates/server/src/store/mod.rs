@@ -229,6 +229,23 @@ pub trait Store: Send + Sync {
         &self,
         cache: Derived,
     ) -> Box<dyn Iterator<Item = StoreResult<(ModelId, Vec<u8>)>> + '_>;
+    /// The models whose entry in a derived cache begins with `prefix` (its layout), in id
+    /// order. A count of what is made, which on a shared store reads ids rather than every
+    /// entry (170 MB of patches at 100 000 models).
+    fn derived_ids(
+        &self,
+        cache: Derived,
+        prefix: &[u8],
+    ) -> Box<dyn Iterator<Item = StoreResult<ModelId>> + '_> {
+        let prefix = prefix.to_vec();
+        Box::new(
+            self.all_derived(cache)
+                .filter_map(move |entry| match entry {
+                    Ok((id, bytes)) => bytes.starts_with(&prefix).then_some(Ok(id)),
+                    Err(e) => Some(Err(e)),
+                }),
+        )
+    }
     /// A small value the service keeps between runs (the progress of a re-extraction).
     fn state(&self, key: &str) -> StoreResult<Option<Vec<u8>>>;
     fn set_state(&self, key: &str, value: &[u8]) -> StoreResult<()>;

@@ -839,6 +839,36 @@ impl super::Store for PostgresStore {
         Box::new(pages.flatten())
     }
 
+    fn derived_ids(
+        &self,
+        cache: Derived,
+        prefix: &[u8],
+    ) -> Box<dyn Iterator<Item = StoreResult<ModelId>> + '_> {
+        let prefix = prefix.to_vec();
+        let pages = Pages {
+            after: Some(String::new()),
+            fetch: move |after: &str| -> StoreResult<Page<ModelId>> {
+                let rows = self.query(
+                    "SELECT id FROM derived WHERE cache = $1 AND id > $2 \
+                     AND substring(entry FROM 1 FOR length($3::bytea)) = $3::bytea ORDER BY id LIMIT $4",
+                    vec![
+                        Param::Text(cache_name(cache).to_string()),
+                        Param::Text(after.to_string()),
+                        Param::Bytes(prefix.clone()),
+                        Param::Int(PAGE),
+                    ],
+                )?;
+                rows.iter()
+                    .map(|row| {
+                        let id: &str = row.get(0);
+                        Ok((id.to_string(), parse_id(id)?))
+                    })
+                    .collect()
+            },
+        };
+        Box::new(pages.flatten())
+    }
+
     fn state(&self, key: &str) -> StoreResult<Option<Vec<u8>>> {
         let rows = self.query(
             "SELECT value FROM state WHERE key = $1",
