@@ -37,6 +37,7 @@ use crate::similarity::{
 mod arrange;
 mod columns;
 mod shelf;
+pub mod vectors;
 
 pub use columns::Row;
 use columns::{BlockSpan, BLOCK};

@@ -518,6 +518,14 @@ unsafe fn pair_bounds_avx2(a: &Sums, b: &Sums) -> [[u32; LIGHT_FIELDS]; LIGHT_FI
 pub struct LfdSummary(Sums);
 
 impl LfdSummary {
+    /// Each light field's coefficient sums over its views, scaled so that the L1 distance of
+    /// two fields' is their term of [`LfdSummary::lower_bound`].
+    pub fn fields(&self) -> impl Iterator<Item = [f32; COEFFICIENTS]> + '_ {
+        self.0
+            .iter()
+            .map(|sums| std::array::from_fn(|c| (f64::from(sums[c]) / MAX_DISTANCE) as f32))
+    }
+
     /// Never above the distance of the descriptors summarised.
     pub fn lower_bound(&self, other: &Self) -> f64 {
         let bounds = pair_bounds(&self.0, &other.0);

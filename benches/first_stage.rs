@@ -1,0 +1,159 @@
+//! How well a first stage of vectors ([`salient_core::rank::vectors`]) finds the hybrid's top
+//! 10 (issue #40): for each layout and oversampling `o`, the `10·o` models nearest a query by
+//! the vectors' distance (exact, by brute force: the vectors' own recall, before an
+//! approximate index such as pgvector's HNSW loses any), ranked by their exact distance, against
+//! the exact ranking of the whole catalogue. Written to `target/salient-bench/first_stage.json`.
+//!
+//! `cargo bench --bench first_stage` (minutes on 2 cores). Needs the load bench's base store
+//! (`cargo bench --bench load` makes it once) and `../shared/data` for the held-out queries
+//! (every fifth model of both collections, whose copies are not stored). Two catalogues: the
+//! load bench's, `SALIENT_FIRST_STAGE_SIZE` (100 000) perturbed copies of the base's models,
+//! which flatters recall (every query has near copies of its neighbours); and the base itself,
+//! where no model has a near copy.
+
+#[path = "support/corpus.rs"]
+mod corpus;
+
+use std::collections::HashSet;
+use std::path::Path;
+
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use rayon::prelude::*;
+use salient_core::mesh::load::load_path;
+use salient_core::params::Limits;
+use salient_core::pipeline::{signature_of_mesh, Extent};
+use salient_core::rank::vectors::{self, Layout};
+use salient_core::rank::{distance, Index, Method, Request, Search};
+use salient_core::{Params, Signature};
+use serde_json::{json, Value};
+
+const K: usize = 10;
+const OVERSAMPLING: [usize; 8] = [1, 2, 3, 5, 10, 20, 50, 100];
+const LAYOUTS: [(Layout, &str); 2] = [
+    (Layout::PerLightField, "per_light_field"),
+    (Layout::Pooled, "pooled"),
+];
+
+/// The held-out models of both collections (every fifth), extracted here.
+fn queries(params: &Params) -> Vec<Signature> {
+    let data = corpus::data_dir();
+    let mut paths = Vec::new();
+    for set in ["shrec07-watertight", "capod"] {
+        let root = data.join(set);
+        let labels = std::fs::read_to_string(root.join("labels.tsv"))
+            .unwrap_or_else(|e| panic!("{}: {e}: the shared collections are needed", root.display()));
+        for (i, line) in labels.lines().skip(1).enumerate() {
+            if i % 5 == 4 {
+                paths.push(root.join(line.split('\t').next().expect("a path")));
+            }
+        }
+    }
+    paths
+        .iter()
+        .map(|path: &std::path::PathBuf| {
+            let raw = load_path(Path::new(path), &Limits::unlimited()).expect("loads");
+            signature_of_mesh(raw, (params, Extent::Full)).expect("extracts")
+        })
+        .collect()
+}
+
+/// Recall@10 of the first stage at each oversampling, per layout, over `catalogue`.
+fn measure(name: &str, catalogue: &[(String, Signature)], queries: &[Signature], params: &Params) -> Value {
+    let similarity = &params.similarity;
+    let mut index = Index::new(similarity.clone());
+    for (id, s) in catalogue {
+        index.insert(id.as_str(), s).expect("shelved");
+    }
+    let truth: Vec<Vec<String>> = queries
+        .iter()
+        .map(|q| {
+            let ranking = index.search(&Request::model(q, Method::Hybrid, K)).expect("ranks");
+            ranking.hits.into_iter().map(|h| h.id).collect()
+        })
+        .collect();
+    let mut out = serde_json::Map::new();
+    for (layout, layout_name) in LAYOUTS {
+        let rows: Vec<Vec<Vec<f32>>> = catalogue
+            .par_iter()
+            .map(|(_, s)| vectors::rows(s, similarity, layout).expect("current signatures"))
+            .collect();
+        let most = K * OVERSAMPLING[OVERSAMPLING.len() - 1];
+        // Per query: the catalogue's positions by the vectors' distance, nearest first.
+        let nearest: Vec<Vec<usize>> = queries
+            .iter()
+            .map(|q| {
+                let q = vectors::rows(q, similarity, layout).expect("current");
+                let mut scored: Vec<(f64, usize)> = rows
+                    .par_iter()
+                    .enumerate()
+                    .map(|(i, r)| (vectors::distance(&q, r), i))
+                    .collect();
+                let cut = most.min(scored.len());
+                scored.select_nth_unstable_by(cut - 1, |a, b| a.0.total_cmp(&b.0));
+                scored.truncate(cut);
+                scored.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+                scored.into_iter().map(|(_, i)| i).collect()
+            })
+            .collect();
+        let mut curve = Vec::new();
+        for o in OVERSAMPLING {
+            let recall: f64 = queries
+                .par_iter()
+                .zip(&nearest)
+                .zip(&truth)
+                .map(|((q, near), truth)| {
+                    let mut ranked: Vec<(f64, &str)> = near
+                        .iter()
+                        .take(K * o)
+                        .map(|&i| {
+                            let (id, s) = &catalogue[i];
+                            (distance(Method::Hybrid, q, s, similarity), id.as_str())
+                        })
+                        .collect();
+                    ranked.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(b.1)));
+                    let found: HashSet<&str> = ranked.iter().take(K).map(|r| r.1).collect();
+                    truth.iter().filter(|id| found.contains(id.as_str())).count() as f64
+                        / truth.len().max(1) as f64
+                })
+                .sum::<f64>()
+                / queries.len() as f64;
+            eprintln!("{name:>10} {layout_name:>16} oversampling {o:>3} ({:>5} candidates): recall@10 {recall:.4}", K * o);
+            curve.push(json!({"oversampling": o, "candidates": K * o, "recall_at_10": recall}));
+        }
+        out.insert(layout_name.to_string(), json!(curve));
+    }
+    json!({"models": catalogue.len(), "queries": queries.len(), "layouts": out})
+}
+
+fn main() {
+    let params = Params::default();
+    let base_path = corpus::base_store_path(true);
+    assert!(
+        base_path.with_extension("complete").exists(),
+        "{} is missing: run `cargo bench --bench load` once to make the base store",
+        base_path.display()
+    );
+    let base: Vec<(String, Signature)> = corpus::load_base(&base_path)
+        .into_iter()
+        .map(|(record, signature, _)| (record.id.to_string(), signature))
+        .collect();
+    let size: usize = std::env::var("SALIENT_FIRST_STAGE_SIZE")
+        .map_or(100_000, |s| s.parse().expect("SALIENT_FIRST_STAGE_SIZE: a count"));
+    eprintln!("extracting the held-out queries…");
+    let queries = queries(&params);
+    let mut rng = ChaCha8Rng::seed_from_u64(0);
+    let copies: Vec<(String, Signature)> = (0..size)
+        .map(|i| {
+            let (_, s) = &base[i % base.len()];
+            (format!("m{i:06}"), corpus::perturbed(s, &mut rng, 0.15))
+        })
+        .collect();
+    let report = json!({
+        "no_copies": measure("no copies", &base, &queries, &params),
+        "copies": measure("copies", &copies, &queries, &params),
+    });
+    let out = Path::new(env!("CARGO_MANIFEST_DIR")).join("target/salient-bench/first_stage.json");
+    std::fs::write(&out, serde_json::to_string_pretty(&report).expect("JSON")).expect("writes");
+    eprintln!("written to {}", out.display());
+}
