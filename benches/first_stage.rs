@@ -17,23 +17,73 @@ mod corpus;
 use std::collections::HashSet;
 use std::path::Path;
 
-use rand::SeedableRng;
+use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
 use salient_core::mesh::load::load_path;
 use salient_core::params::Limits;
+use salient_core::params::SimilarityParams;
 use salient_core::pipeline::{signature_of_mesh, Extent};
 use salient_core::rank::vectors::{self, Layout};
-use salient_core::rank::{distance, Index, Method, Request, Search};
+use salient_core::rank::{distance, hybrid_parts, Index, Method, Request, Search};
 use salient_core::{Params, Signature};
 use serde_json::{json, Value};
 
 const K: usize = 10;
 const OVERSAMPLING: [usize; 8] = [1, 2, 3, 5, 10, 20, 50, 100];
-const LAYOUTS: [(Layout, &str); 2] = [
-    (Layout::PerLightField, "per_light_field"),
-    (Layout::Pooled, "pooled"),
+/// The layouts compared, each with its parts' weights as the hybrid's or calibrated.
+const LAYOUTS: [(Layout, bool, &str); 3] = [
+    (Layout::PerLightField, false, "per_light_field"),
+    (Layout::Pooled, false, "pooled"),
+    (Layout::Pooled, true, "pooled_calibrated"),
 ];
+
+/// The similarity parameters whose weights make each part's vector distance its typical
+/// exact distance rather than a bound of it: each weight times the median, over pairs of
+/// `models`, of the part's exact distance over its pooled vectors' distance.
+fn calibrated(models: &[(String, Signature)], params: &SimilarityParams) -> SimilarityParams {
+    let mut rng = ChaCha8Rng::seed_from_u64(3);
+    let pairs: Vec<(usize, usize)> = (0..2000)
+        .map(|_| {
+            (
+                rng.gen_range(0..models.len()),
+                rng.gen_range(0..models.len()),
+            )
+        })
+        .filter(|(a, b)| a != b)
+        .collect();
+    let mut out = params.clone();
+    for k in 0..4 {
+        if params.hybrid.terms()[k].weight == 0.0 {
+            continue;
+        }
+        // Rows of this part alone: the others weigh nothing.
+        let mut alone = params.clone();
+        for (j, term) in alone.hybrid.terms_mut().into_iter().enumerate() {
+            if j != k {
+                term.weight = 0.0;
+            }
+        }
+        let rows: Vec<Vec<Vec<f32>>> = models
+            .par_iter()
+            .map(|(_, s)| vectors::rows(s, &alone, Layout::Pooled).expect("current"))
+            .collect();
+        let mut ratios: Vec<f64> = pairs
+            .par_iter()
+            .filter_map(|&(a, b)| {
+                let exact = hybrid_parts(&models[a].1, &models[b].1, params)[k]?;
+                let term = params.hybrid.terms()[k];
+                let vector = vectors::distance(&rows[a], &rows[b]) * term.scale / term.weight;
+                (vector > 0.0).then(|| exact / vector)
+            })
+            .collect();
+        ratios.sort_by(f64::total_cmp);
+        let ratio = ratios[ratios.len() / 2];
+        eprintln!("part {k}: exact over vector distance, median {ratio:.3}");
+        out.hybrid.terms_mut()[k].weight *= ratio;
+    }
+    out
+}
 
 /// The held-out models of both collections (every fifth), extracted here.
 fn queries(params: &Params) -> Vec<Signature> {
@@ -41,8 +91,9 @@ fn queries(params: &Params) -> Vec<Signature> {
     let mut paths = Vec::new();
     for set in ["shrec07-watertight", "capod"] {
         let root = data.join(set);
-        let labels = std::fs::read_to_string(root.join("labels.tsv"))
-            .unwrap_or_else(|e| panic!("{}: {e}: the shared collections are needed", root.display()));
+        let labels = std::fs::read_to_string(root.join("labels.tsv")).unwrap_or_else(|e| {
+            panic!("{}: {e}: the shared collections are needed", root.display())
+        });
         for (i, line) in labels.lines().skip(1).enumerate() {
             if i % 5 == 4 {
                 paths.push(root.join(line.split('\t').next().expect("a path")));
@@ -59,7 +110,12 @@ fn queries(params: &Params) -> Vec<Signature> {
 }
 
 /// Recall@10 of the first stage at each oversampling, per layout, over `catalogue`.
-fn measure(name: &str, catalogue: &[(String, Signature)], queries: &[Signature], params: &Params) -> Value {
+fn measure(
+    name: &str,
+    catalogue: &[(String, Signature)],
+    queries: &[Signature],
+    (params, calibrated): (&Params, &SimilarityParams),
+) -> Value {
     let similarity = &params.similarity;
     let mut index = Index::new(similarity.clone());
     for (id, s) in catalogue {
@@ -68,22 +124,25 @@ fn measure(name: &str, catalogue: &[(String, Signature)], queries: &[Signature],
     let truth: Vec<Vec<String>> = queries
         .iter()
         .map(|q| {
-            let ranking = index.search(&Request::model(q, Method::Hybrid, K)).expect("ranks");
+            let ranking = index
+                .search(&Request::model(q, Method::Hybrid, K))
+                .expect("ranks");
             ranking.hits.into_iter().map(|h| h.id).collect()
         })
         .collect();
     let mut out = serde_json::Map::new();
-    for (layout, layout_name) in LAYOUTS {
+    for (layout, calibrate, layout_name) in LAYOUTS {
+        let weights = if calibrate { calibrated } else { similarity };
         let rows: Vec<Vec<Vec<f32>>> = catalogue
             .par_iter()
-            .map(|(_, s)| vectors::rows(s, similarity, layout).expect("current signatures"))
+            .map(|(_, s)| vectors::rows(s, weights, layout).expect("current signatures"))
             .collect();
         let most = K * OVERSAMPLING[OVERSAMPLING.len() - 1];
         // Per query: the catalogue's positions by the vectors' distance, nearest first.
         let nearest: Vec<Vec<usize>> = queries
             .iter()
             .map(|q| {
-                let q = vectors::rows(q, similarity, layout).expect("current");
+                let q = vectors::rows(q, weights, layout).expect("current");
                 let mut scored: Vec<(f64, usize)> = rows
                     .par_iter()
                     .enumerate()
@@ -113,7 +172,10 @@ fn measure(name: &str, catalogue: &[(String, Signature)], queries: &[Signature],
                         .collect();
                     ranked.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(b.1)));
                     let found: HashSet<&str> = ranked.iter().take(K).map(|r| r.1).collect();
-                    truth.iter().filter(|id| found.contains(id.as_str())).count() as f64
+                    truth
+                        .iter()
+                        .filter(|id| found.contains(id.as_str()))
+                        .count() as f64
                         / truth.len().max(1) as f64
                 })
                 .sum::<f64>()
@@ -138,8 +200,9 @@ fn main() {
         .into_iter()
         .map(|(record, signature, _)| (record.id.to_string(), signature))
         .collect();
-    let size: usize = std::env::var("SALIENT_FIRST_STAGE_SIZE")
-        .map_or(100_000, |s| s.parse().expect("SALIENT_FIRST_STAGE_SIZE: a count"));
+    let size: usize = std::env::var("SALIENT_FIRST_STAGE_SIZE").map_or(100_000, |s| {
+        s.parse().expect("SALIENT_FIRST_STAGE_SIZE: a count")
+    });
     eprintln!("extracting the held-out queries…");
     let queries = queries(&params);
     let mut rng = ChaCha8Rng::seed_from_u64(0);
@@ -149,9 +212,14 @@ fn main() {
             (format!("m{i:06}"), corpus::perturbed(s, &mut rng, 0.15))
         })
         .collect();
+    // On the base: the held-out queries' models are not among them.
+    let calibrated = calibrated(&base, &params.similarity);
     let report = json!({
-        "no_copies": measure("no copies", &base, &queries, &params),
-        "copies": measure("copies", &copies, &queries, &params),
+        "calibration": calibrated.hybrid.terms().iter().zip(params.similarity.hybrid.terms())
+            .map(|(c, t)| if t.weight > 0.0 { c.weight / t.weight } else { 0.0 })
+            .collect::<Vec<f64>>(),
+        "no_copies": measure("no copies", &base, &queries, (&params, &calibrated)),
+        "copies": measure("copies", &copies, &queries, (&params, &calibrated)),
     });
     let out = Path::new(env!("CARGO_MANIFEST_DIR")).join("target/salient-bench/first_stage.json");
     std::fs::write(&out, serde_json::to_string_pretty(&report).expect("JSON")).expect("writes");

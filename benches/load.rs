@@ -26,6 +26,11 @@
 //! the other (its `Salient-Position` sent along). `SALIENT_LOAD_METHODS` picks the method
 //! (hybrid by default here); the ingest figures are sled's and left out.
 //!
+//! `SALIENT_LOAD_INDEX=pgvector` (with `SALIENT_LOAD_STORE=postgres`): replica a ranks with
+//! its first stage in the database (`--index pgvector`, #40) and b exactly; each size's
+//! `"pgvector"` figures give a's recall@10 against b over the held-out uploads, also on a
+//! database of the base models alone (`recall_at_10_no_copies`), a's ranking times and memory.
+//!
 //! A bench target rather than a subcommand: it stays out of `cargo test` and of the shipped
 //! binary, and cargo builds the server it starts in release mode.
 
@@ -417,6 +422,77 @@ fn settle() {
     assert!(synced.success(), "sync");
 }
 
+/// Recall@10 of the replica at `approximate` against the exact one at `exact`, over uploads
+/// of the held-out meshes: the share of the exact top 10 the approximate one returns.
+fn recall_at_10(
+    runtime: &tokio::runtime::Runtime,
+    client: &reqwest::Client,
+    (approximate, exact): (&str, &str),
+    queries: &[(String, Vec<u8>)],
+) -> f64 {
+    runtime.block_on(async {
+        let mut found = 0;
+        let mut asked = 0;
+        for (ext, bytes) in queries {
+            let mut tops = Vec::new();
+            for url in [approximate, exact] {
+                let response = client
+                    .post(format!("{url}/v1/search?k=10&format={ext}"))
+                    .header("content-type", "application/octet-stream")
+                    .body(bytes.clone())
+                    .send()
+                    .await
+                    .expect("the replica answers");
+                assert!(response.status().is_success(), "{}", response.status());
+                let body: Value = response.json().await.expect("JSON");
+                let ids: Vec<String> = body["results"]
+                    .as_array()
+                    .expect("results")
+                    .iter()
+                    .map(|r| r["id"].as_str().expect("an id").to_string())
+                    .collect();
+                tops.push(ids);
+            }
+            asked += tops[1].len();
+            found += tops[1].iter().filter(|id| tops[0].contains(id)).count();
+        }
+        found as f64 / asked.max(1) as f64
+    })
+}
+
+/// Recall@10 of the pgvector first stage over the base models alone, on a database of its
+/// own: no model has a near copy, unlike the large stores' perturbed copies.
+fn recall_without_copies(
+    runtime: &tokio::runtime::Runtime,
+    client: &reqwest::Client,
+    base: &Path,
+    sources: &Sources,
+) -> f64 {
+    let server = own_postgres::OwnServer::start();
+    let store = PostgresStore::open(server.url()).expect("the database opens");
+    for (record, signature, upload) in corpus::load_base(base) {
+        store
+            .put(&record, &signature.to_bytes(), &upload)
+            .expect("stores");
+    }
+    drop(store);
+    let caches = temporary();
+    let [approximate, exact] = [("a", "pgvector"), ("b", "memory")].map(|(name, index)| {
+        Server::start(
+            &caches.path().join(name),
+            &["--store", server.url(), "--index", index],
+        )
+    });
+    let recall = recall_at_10(
+        runtime,
+        client,
+        (&approximate.url, &exact.url),
+        &sources.queries,
+    );
+    eprintln!("recall@10 of the pgvector first stage without copies: {recall:.4}");
+    recall
+}
+
 /// Two replicas started one after the other on the PostgreSQL database `url`: their start-up,
 /// `method`'s `similar` on the first and held-out uploads on the second while both serve, and
 /// how long a write acknowledged by one takes to be served by the other.
@@ -426,12 +502,17 @@ fn replicas(
     url: &str,
     sources: &Sources,
     (size, method, budget): (usize, Method, Duration),
+    index: &str,
 ) -> Value {
     let caches = temporary();
     let mut startup_s = Vec::new();
-    let replicas = ["a", "b"].map(|name| {
+    // Replica a ranks with `index`'s first stage, b with the exact in-memory one.
+    let replicas = [("a", index), ("b", "memory")].map(|(name, index)| {
         let clock = Instant::now();
-        let server = Server::start(&caches.path().join(name), &["--store", url]);
+        let server = Server::start(
+            &caches.path().join(name),
+            &["--store", url, "--index", index],
+        );
         startup_s.push(clock.elapsed().as_secs_f64());
         server
     });
@@ -443,14 +524,15 @@ fn replicas(
         &format!("similar, {method}, replica a"),
         similar(runtime, client, &a.url, (size, method, budget)),
     );
-    let (c, u, queries) = (client.clone(), b.url.clone(), sources.queries.clone());
+    // Held-out uploads on a: its first stage's cost is what they measure.
+    let (c, u, queries) = (client.clone(), a.url.clone(), sources.queries.clone());
     let run = runtime.block_on(closed_loop(budget * 3, queries.len(), move |n| {
         let (ext, bytes) = &queries[n % queries.len()];
         c.post(format!("{u}/v1/search?k=10&method={method}&format={ext}"))
             .header("content-type", "application/octet-stream")
             .body(bytes.clone())
     }));
-    let held_out = report(size, &format!("held-out upload, {method}, replica b"), run);
+    let held_out = report(size, &format!("held-out upload, {method}, replica a"), run);
     // Writes on one replica, each read on the other with its position: the time from the
     // acknowledgement to the other's answer, alternating directions.
     let mut visible_ms = Vec::new();
@@ -484,7 +566,9 @@ fn replicas(
         percentile_ms(&mut visible_ms, 0.5),
         percentile_ms(&mut visible_ms, 0.99),
     );
-    let rss_mib = b.resident_mib().unwrap_or(f64::NAN);
+    let rss_mib = a.resident_mib().unwrap_or(f64::NAN);
+    let recall = (index == "pgvector")
+        .then(|| recall_at_10(runtime, client, (&a.url, &b.url), &sources.queries));
     println!(
         "| {size} | a write on one replica served by the other | {} | | {visible_p50:.1} | {visible_p99:.1} | | | |",
         visible_ms.len()
@@ -505,6 +589,8 @@ fn replicas(
         },
         "write_visible_on_other_p50_ms": visible_p50,
         "write_visible_on_other_p99_ms": visible_p99,
+        "index": index,
+        "recall_at_10": recall,
     })
 }
 
@@ -548,6 +634,15 @@ fn main() {
         let store = PostgresStore::open(server.url()).expect("the bench's database opens");
         (server, store)
     });
+    // `SALIENT_LOAD_INDEX=pgvector`: replica a's first stage in the database (#40), its
+    // recall@10 measured against replica b's exact ranking.
+    let index = std::env::var("SALIENT_LOAD_INDEX").unwrap_or_else(|_| "memory".into());
+    assert!(
+        index == "memory" || (index == "pgvector" && postgres.is_some()),
+        "SALIENT_LOAD_INDEX: memory, or pgvector with SALIENT_LOAD_STORE=postgres"
+    );
+    let recall_no_copies =
+        (index == "pgvector").then(|| recall_without_copies(&runtime, &client, &base, &sources));
 
     println!(
         "{CLIENTS} clients in a closed loop; search_ms is the server's ranking time alone, exact \
@@ -576,13 +671,21 @@ fn main() {
         stored = size;
         if let Some((server, _)) = &postgres {
             let measured = (size, measured[0], budget);
-            figures.push(replicas(
-                &runtime,
-                &client,
-                server.url(),
-                &sources,
-                measured,
-            ));
+            let mut replica_figures =
+                replicas(&runtime, &client, server.url(), &sources, measured, &index);
+            if index == "pgvector" {
+                let f = &replica_figures;
+                let held_out = &f["methods"][measured.1.to_string()];
+                replica_figures["pgvector"] = json!({
+                    "recall_at_10": f["recall_at_10"],
+                    "recall_at_10_no_copies": recall_no_copies,
+                    "heldout_rank_p50_ms": held_out["heldout_rank_p50_ms"],
+                    "heldout_rank_p99_ms": held_out["heldout_rank_p99_ms"],
+                    "rss_mib": f["rss_mib"],
+                    "oversampling": salient_server::api::Config::default().first_stage_oversampling,
+                });
+            }
+            figures.push(replica_figures);
             continue;
         }
         let clock = Instant::now();

@@ -7,8 +7,8 @@ use std::sync::Arc;
 use anyhow::Context;
 
 use salient_core::display::UpAxis;
-use salient_server::api::config::Secret;
-use salient_server::api::{app, App, AppState, Config};
+use salient_server::api::config::{FirstStageKind, Secret};
+use salient_server::api::{app, first_stage, App, AppState, Config};
 use salient_server::store::{PostgresStore, SledStore, Store};
 
 /// Flags override the environment (`SALIENT_*`), which overrides the configuration file,
@@ -92,6 +92,10 @@ pub struct Args {
     /// Folder for `POST /v1/admin/backup`'s snapshots of the sled store (`salient backup`).
     #[arg(long, env = "SALIENT_BACKUP_DIR")]
     backup_dir: Option<PathBuf>,
+    /// Where the hybrid's rankings find their candidates: `memory` (exact, the default) or
+    /// `pgvector` (with `--store`: pgvector's HNSW index in the database, approximate).
+    #[arg(long, env = "SALIENT_INDEX", value_parser = super::choice(&FirstStageKind::ALL, FirstStageKind::as_str))]
+    index: Option<FirstStageKind>,
 }
 
 impl Args {
@@ -127,6 +131,7 @@ impl Args {
         config.requests_per_minute = a.requests_per_minute.unwrap_or(config.requests_per_minute);
         config.adopt_extraction = a.adopt_extraction.unwrap_or(config.adopt_extraction);
         config.backup_dir = a.backup_dir.or(config.backup_dir);
+        config.index = a.index.unwrap_or(config.index);
         // Keys are secrets: the environment is the one place they come from, so that they
         // appear in no command line (`ps`) and no configuration file.
         config.inline_keys = std::env::var("SALIENT_API_KEYS").ok().map(Secret);
@@ -152,9 +157,14 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             std::fs::create_dir_all(&config.data).with_context(|| {
                 format!("cannot make the cache folder {}", config.data.display())
             })?;
-            Arc::new(
-                PostgresStore::open(url).context("cannot open the PostgreSQL store (--store)")?,
-            )
+            let store =
+                PostgresStore::open(url).context("cannot open the PostgreSQL store (--store)")?;
+            Arc::new(match config.index {
+                FirstStageKind::Memory => store,
+                FirstStageKind::Pgvector => store
+                    .with_first_stage(first_stage::spec(&config.params))
+                    .context("cannot keep the first stage in the PostgreSQL store (--index)")?,
+            })
         }
         None => Arc::new(
             SledStore::open(&config.data)

@@ -36,6 +36,7 @@ mod lfd;
 mod load;
 mod openapi;
 mod partial;
+mod pgvector;
 mod previews;
 mod rank;
 mod reindex;

@@ -588,3 +588,47 @@ fn block_boxes_never_bound_above_their_entries() {
     // The boxes do bound: many are above 0 (blocks of entries of every class).
     assert!(positive * 4 > checked, "{positive} of {checked} above 0");
 }
+
+/// The first stage's vectors (#40): every row as long as `dimensions` says, with features or
+/// without, and per light field their least L1 distance never exceeds the hybrid distance,
+/// whatever the weights: a first stage ordered by it may stop at an exact bound.
+#[test]
+fn first_stage_rows_bound_the_hybrid_distance() {
+    use salient_core::rank::vectors::{self, Layout};
+    let mut collection = synthetic::collection(60, 6, 21);
+    synthetic::with_descriptors(&mut collection, 6, 22);
+    let term = |weight, scale| Term { weight, scale };
+    for hybrid in [
+        HybridParams::default(),
+        HybridParams {
+            ecc: term(1.0, 0.3),
+            d2: term(1.0, 0.1),
+            lfd: term(1.0, 0.04),
+            geodesic: term(0.5, 0.05),
+            penalty_power: 0.5,
+        },
+    ] {
+        let mut params = Params::default().similarity;
+        params.hybrid = hybrid;
+        let rows: Vec<Vec<Vec<f32>>> = collection
+            .iter()
+            .map(|(_, s)| vectors::rows(s, &params, Layout::PerLightField).expect("current"))
+            .collect();
+        for ((_, p), a) in collection.iter().zip(&rows).step_by(7) {
+            assert!(a.iter().all(|r| r.len() == vectors::dimensions(&p.params)));
+            for ((_, q), b) in collection.iter().zip(&rows) {
+                let bound = vectors::distance(a, b);
+                let exact = distance(Method::Hybrid, p, q, &params);
+                assert!(bound <= exact + 1e-6, "{bound} > {exact}");
+            }
+        }
+    }
+    let mut featureless = collection[0].1.clone();
+    featureless.features.clear();
+    let params = Params::default();
+    let pooled = vectors::rows(&featureless, &params.similarity, Layout::Pooled).expect("current");
+    assert_eq!(pooled.len(), 1);
+    assert_eq!(pooled[0].len(), vectors::dimensions(&params));
+    featureless.geodesic = None;
+    assert!(vectors::rows(&featureless, &params.similarity, Layout::Pooled).is_none());
+}

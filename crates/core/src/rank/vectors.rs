@@ -6,7 +6,7 @@
 //! distance of a few numbers, once scaled by the part's weight over its scale: the geodesic
 //! distance is the L1 distance of cumulative sums ([`Cumulative`]); the light field bound the
 //! least over pairs of light fields of the L1 distance of their view sums
-//! ([`crate::descriptor::lfd::LfdSummary::lower_bound`]); the global D2 distance is L1. The
+//! ([`crate::descriptor::lfd::LfdSummary::lower_bound`]); the global D2 distance is half an L1. The
 //! ECC part's centroid bound ([`crate::similarity::centroid_bound`]) is an L2 distance of mean
 //! ECC values, of which the L1 distance over the waves' count is a lower bound (`‖x‖₂ ≥
 //! ‖x‖₁/√n` and its `1/√n`), plus an L1 distance of mean region D2 bins.
@@ -17,8 +17,9 @@
 //! pooled ([`Layout::Pooled`]): their mean, nearly the same for any rotation as the views
 //! cover the sphere, which orders models close to the bound at a tenth of the rows.
 
-use crate::descriptor::GeodesicDescriptor;
-use crate::params::SimilarityParams;
+use crate::descriptor::geodesic::{self, GeodesicDescriptor};
+use crate::descriptor::lfd::COEFFICIENTS;
+use crate::params::{Params, SimilarityParams, Term};
 use crate::signature::Signature;
 use crate::similarity::Features;
 
@@ -34,11 +35,14 @@ pub enum Layout {
 /// The rows of `signature` under the hybrid's weights in `params`, all of one length for one
 /// set of extraction parameters; `None` for a signature without a light field or geodesic
 /// descriptor (made before they existed: stale, and ranked once re-extracted).
-pub fn rows(signature: &Signature, params: &SimilarityParams, layout: Layout) -> Option<Vec<Vec<f32>>> {
+pub fn rows(
+    signature: &Signature,
+    params: &SimilarityParams,
+    layout: Layout,
+) -> Option<Vec<Vec<f32>>> {
     let h = &params.hybrid;
-    let unit = |term: crate::params::Term| term.weight / term.scale;
-    let fields: Vec<[f32; crate::descriptor::lfd::COEFFICIENTS]> =
-        signature.lfd.as_ref()?.summary().fields().collect();
+    let unit = |term: Term| term.weight / term.scale;
+    let fields: Vec<[f32; COEFFICIENTS]> = signature.lfd.as_ref()?.summary().fields().collect();
     let geodesic: &GeodesicDescriptor = signature.geodesic.as_ref()?;
     // The parts every row repeats.
     let mut common = Vec::new();
@@ -46,15 +50,18 @@ pub fn rows(signature: &Signature, params: &SimilarityParams, layout: Layout) ->
     let values = cumulative.values();
     let scale = unit(h.geodesic) / values.len() as f64;
     common.extend(values.iter().map(|&v| (f64::from(v) * scale) as f32));
-    let scale = unit(h.d2);
+    let scale = unit(h.d2) / 2.0;
     common.extend(signature.d2.iter().map(|&v| (f64::from(v) * scale) as f32));
+    // Zeros for a model without features: every row of one extraction is as long.
     let (ecc, d2) = Features::of(&signature.features).centroid();
+    let extraction = &signature.params;
+    let padded = |v: Vec<f32>, len: usize| v.into_iter().chain(std::iter::repeat(0.0)).take(len);
     let w = params.ecc_weight;
-    let waves = ecc.len().max(1) as f64;
-    let scale = unit(h.ecc) * w / waves;
-    common.extend(ecc.iter().map(|&v| (f64::from(v) * scale) as f32));
+    let waves = extraction.ecc.waves;
+    let scale = unit(h.ecc) * w / waves as f64;
+    common.extend(padded(ecc, waves).map(|v| (f64::from(v) * scale) as f32));
     let scale = unit(h.ecc) * (1.0 - w) / 2.0;
-    common.extend(d2.iter().map(|&v| (f64::from(v) * scale) as f32));
+    common.extend(padded(d2, extraction.d2.bins).map(|v| (f64::from(v) * scale) as f32));
 
     let scale = unit(h.lfd);
     let row = |field: &[f32]| -> Vec<f32> {
@@ -76,9 +83,17 @@ pub fn rows(signature: &Signature, params: &SimilarityParams, layout: Layout) ->
     })
 }
 
+/// The length of the rows of signatures extracted with `params`.
+pub fn dimensions(params: &Params) -> usize {
+    COEFFICIENTS + 2 * geodesic::BINS + 2 * params.d2.bins + params.ecc.waves
+}
+
 /// The L1 distance of two rows.
 pub fn l1(a: &[f32], b: &[f32]) -> f64 {
-    a.iter().zip(b).map(|(&x, &y)| f64::from((x - y).abs())).sum()
+    a.iter()
+        .zip(b)
+        .map(|(&x, &y)| f64::from((x - y).abs()))
+        .sum()
 }
 
 /// The least L1 distance over pairs of rows: the first stage's distance of two models.

@@ -83,6 +83,37 @@ pub struct Config {
     /// That count leaves out models stored this recently: the replica that stored them is
     /// making them. One stored within it by a replica killed since waits for the next count.
     pub patch_grace_secs: u64,
+    /// Where a ranking's first stage runs ([`FirstStageKind`]).
+    pub index: FirstStageKind,
+    /// With `index = "pgvector"`: the candidates the first stage passes on, per result asked,
+    /// to be ranked by their exact distance (`benches/first_stage.rs` measures recall by it).
+    pub first_stage_oversampling: usize,
+    /// The most candidates one ranking reads from the first stage (each with its signature,
+    /// ~7 KB), whatever its `k`.
+    pub first_stage_max_candidates: usize,
+}
+
+/// Where a ranking's first stage runs.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum FirstStageKind {
+    /// The in-memory index: exact, every model's bounds in this process (the default).
+    #[default]
+    Memory,
+    /// pgvector's HNSW index in the PostgreSQL store (#40): approximate, and nothing per
+    /// model in this process for the hybrid's rankings.
+    Pgvector,
+}
+
+impl FirstStageKind {
+    pub const ALL: [FirstStageKind; 2] = [FirstStageKind::Memory, FirstStageKind::Pgvector];
+
+    pub fn as_str(self) -> &'static str {
+        match self {
+            FirstStageKind::Memory => "memory",
+            FirstStageKind::Pgvector => "pgvector",
+        }
+    }
 }
 
 /// A value that must not be printed: its `Debug` says only that it is there.
@@ -130,6 +161,9 @@ impl Default for Config {
             backup_dir: None,
             patch_recount_secs: 600,
             patch_grace_secs: 600,
+            index: FirstStageKind::Memory,
+            first_stage_oversampling: 100,
+            first_stage_max_candidates: 5000,
         }
     }
 }
@@ -190,12 +224,14 @@ impl Config {
             return Err("extraction_nice must be within 0..=19".into());
         }
         if self.max_body_bytes == 0
+            || self.first_stage_oversampling == 0
+            || self.first_stage_max_candidates == 0
             || self.max_upload_bytes == 0
             || self.request_timeout_secs == 0
             || self.max_k == 0
         {
             return Err(
-                "max_body_bytes, max_upload_bytes, request_timeout_secs and max_k must be positive"
+                "max_body_bytes, max_upload_bytes, request_timeout_secs, max_k and the first stage's oversampling and candidates must be positive"
                     .into(),
             );
         }

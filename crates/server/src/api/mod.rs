@@ -12,6 +12,7 @@ pub mod duplicates;
 pub mod error;
 pub mod evidence;
 mod files;
+pub mod first_stage;
 pub mod follow;
 mod metrics;
 mod models;
@@ -160,6 +161,8 @@ pub enum StartError {
     Shelf(std::io::Error),
     #[error("the shared store's models were extracted with other parameters than this replica's: run every replica with the same configuration, or, to change them, stop the others and start one with --adopt-extraction (SALIENT_ADOPT_EXTRACTION=1), which re-extracts every model")]
     OtherExtraction,
+    #[error("index = \"pgvector\" needs a PostgreSQL store keeping the first stage (salient serve --store postgres://… --index pgvector)")]
+    NoFirstStage,
     #[error("refusing to serve {0} without API keys: anyone who can reach it could add and delete models. Set SALIENT_API_KEYS=write:KEY (or admin:KEY), or pass --keys FILE (make a key with `salient keys new --scope write --label NAME --file FILE`); or, on a network you trust, --allow-anonymous")]
     Anonymous(std::net::SocketAddr),
 }
@@ -241,6 +244,9 @@ impl App {
         // Safe by default: without keys, only this machine may reach the service.
         if keys.is_empty() && !config.addr.ip().is_loopback() && !config.allow_anonymous {
             return Err(StartError::Anonymous(config.addr));
+        }
+        if config.index == config::FirstStageKind::Pgvector && store.first_stage().is_none() {
+            return Err(StartError::NoFirstStage);
         }
         // Read before loading: what is committed meanwhile is applied again after.
         let follower = match store.shared() {

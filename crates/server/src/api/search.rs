@@ -7,7 +7,9 @@ use axum::extract::State;
 use axum::Json;
 use serde::{Deserialize, Serialize};
 
+use super::config::FirstStageKind;
 use super::error::{AppError, ErrorBody};
+use super::first_stage;
 use super::models::no_model;
 use super::request::{AppPath, AppQuery, ModelPath};
 use super::upload::MeshUpload;
@@ -178,6 +180,10 @@ pub struct SearchResponse {
     pub mode: SearchMode,
     pub k: usize,
     pub results: Vec<SearchHit>,
+    /// Whether a model nearer than these results may be missing from them: the hybrid's
+    /// rankings with their first stage in the database (`--index pgvector`) are approximate
+    /// (recall in README, "Scaling past one machine"); the others are exact.
+    pub approximate: bool,
     /// Models whose exact distance was computed, and models rejected by a lower bound.
     pub evaluated: usize,
     pub pruned: usize,
@@ -351,6 +357,7 @@ async fn search_part(
         mode: SearchMode::Partial,
         k,
         results,
+        approximate: false,
         evaluated: ranking.evaluated,
         pruned: ranking.pruned,
         left_out: 0,
@@ -483,8 +490,29 @@ async fn rank(
             .collect(),
     });
     let explained = explain_hits.then(|| (query.clone(), params.clone()));
-    let results = app
-        .read_catalog(move |catalog| {
+    let approximate = app.config.index == FirstStageKind::Pgvector
+        && method == Method::Hybrid
+        && params == app.config.params.similarity;
+    let results = if approximate {
+        let ranked = first_stage::rank(
+            app,
+            query.clone(),
+            k,
+            tag.clone(),
+            exclude.as_ref().map(ModelId::to_string),
+        )
+        .await?;
+        let catalog = app.catalog.snapshot();
+        let tagged = tagged(&catalog, &tag);
+        let scope = Scope {
+            without: exclude.as_ref().map(ModelId::as_str),
+            keep: tag.is_some().then_some(&tagged as _),
+        };
+        let Coverage { left_out, partial } = catalog.index.coverage(method, &scope);
+        let results = search_hits(&catalog, ranked.hits);
+        (results, ranked.evaluated, 0, left_out, partial)
+    } else {
+        app.read_catalog(move |catalog| {
             let tagged = tagged(catalog, &tag);
             let scope = Scope {
                 without: exclude.as_ref().map(ModelId::as_str),
@@ -506,7 +534,8 @@ async fn rank(
             ))
         })
         .await?
-        .map_err(AppError::index)?;
+        .map_err(AppError::index)?
+    };
     let search_seconds = search_clock.elapsed().as_secs_f64();
     app.metrics.search_seconds.observe(search_seconds);
     let (mut results, evaluated, pruned, left_out, partial) = results;
@@ -534,6 +563,7 @@ async fn rank(
         mode: SearchMode::Whole,
         k,
         results,
+        approximate,
         evaluated,
         pruned,
         left_out,

@@ -156,6 +156,41 @@ pub trait Shared: Send + Sync {
     fn try_lock(&self, name: &str) -> StoreResult<Option<Box<dyn Send>>>;
 }
 
+/// How a store makes the vectors of a first stage kept in the database (#40): one vector of
+/// `dimensions` per model from its stored signature (`None`: the model has none, as a stale
+/// signature), made for the ranking parameters `key` names.
+#[derive(Clone)]
+pub struct VectorSpec {
+    pub dimensions: usize,
+    pub key: String,
+    pub vector: VectorOf,
+}
+
+/// A model's first-stage vector from its stored signature's bytes ([`VectorSpec`]).
+pub type VectorOf = std::sync::Arc<dyn Fn(&[u8]) -> Option<Vec<f32>> + Send + Sync>;
+
+/// A model a first stage found, with its stored signature for the exact ranking.
+pub struct Candidate {
+    pub id: ModelId,
+    pub signature: Vec<u8>,
+}
+
+/// A first stage of ranking kept in the store (pgvector's HNSW index, #40): the models
+/// nearest a vector by L1 distance, approximately.
+pub trait FirstStage: Send + Sync {
+    /// About the `count` models nearest `vector` that have `tag` (any model when `None`),
+    /// `without` left out, each with its signature, in one round trip.
+    fn nearest(
+        &self,
+        vector: &[f32],
+        count: usize,
+        tag: Option<&str>,
+        without: Option<&str>,
+    ) -> StoreResult<Vec<Candidate>>;
+    /// How many models have no vector (their signatures lack a descriptor): left out.
+    fn without_vectors(&self) -> StoreResult<usize>;
+}
+
 /// The storage operations the service uses.
 pub trait Store: Send + Sync {
     /// Adds or replaces `record.id` with its signature and files, atomically and durably.
@@ -253,6 +288,10 @@ pub trait Store: Send + Sync {
     fn states(&self) -> StoreResult<Vec<(String, Vec<u8>)>>;
     /// The log and locks of a store that other processes share, if it is one.
     fn shared(&self) -> Option<&dyn Shared> {
+        None
+    }
+    /// The first stage the store keeps, if it keeps one.
+    fn first_stage(&self) -> Option<&dyn FirstStage> {
         None
     }
 }

@@ -32,7 +32,8 @@ use tokio_postgres::tls::{MakeTlsConnect, TlsConnect};
 use tokio_postgres::{AsyncMessage, NoTls, Socket, Transaction};
 
 use super::{
-    blob_hashes, upload_files, Change, Changes, Derived, Loaded, Shared, StoreError, StoreResult,
+    blob_hashes, upload_files, Candidate, Change, Changes, Derived, FirstStage, Loaded, Shared,
+    StoreError, StoreResult, VectorSpec,
 };
 use crate::model::{ModelId, ModelRecord, Upload};
 
@@ -68,6 +69,8 @@ pub struct PostgresStore {
     /// The runtime the client runs on; shut down without waiting when the store is dropped
     /// (dropping a runtime from inside another one would panic).
     runtime: Option<tokio::runtime::Runtime>,
+    /// The first stage's vectors, when kept ([`PostgresStore::with_first_stage`]).
+    vectors: Option<VectorSpec>,
 }
 
 impl std::fmt::Debug for PostgresStore {
@@ -201,6 +204,7 @@ impl PostgresStore {
             listener,
             written: Arc::new(AtomicU64::new(0)),
             runtime: Some(runtime),
+            vectors: None,
         };
         store.run(|pool| async move { migrate(&pool).await })?;
         Ok(store)
@@ -581,12 +585,14 @@ impl super::Store for PostgresStore {
                 .collect(),
         );
         let encoded: Arc<str> = encoded.into();
+        let vector = self.vector_of(&signature);
         self.transaction(move |tx| {
-            let (record, signature, bytes, encoded) = (
+            let (record, signature, bytes, encoded, vector) = (
                 record.clone(),
                 signature.clone(),
                 bytes.clone(),
                 encoded.clone(),
+                vector.clone(),
             );
             Box::pin(async move {
                 let id = record.id.as_str();
@@ -615,6 +621,9 @@ impl super::Store for PostgresStore {
                 )
                 .await
                 .map_err(backend)?;
+                if let Some(vector) = &vector {
+                    put_vector(tx, &record, vector).await?;
+                }
                 Ok((previous, Some(Change::Model(record.id.clone()))))
             })
         })
@@ -624,25 +633,31 @@ impl super::Store for PostgresStore {
         let encoded: Arc<str> = serde_json::to_string(record)
             .expect("records serialise")
             .into();
-        let (id, hash, signature): (ModelId, Arc<str>, Arc<[u8]>) = (
-            record.id.clone(),
-            record.content_hash.as_str().into(),
-            signature.into(),
-        );
+        let vector = self.vector_of(signature);
+        let (record, signature): (Arc<ModelRecord>, Arc<[u8]>) =
+            (Arc::new(record.clone()), signature.into());
         self.transaction(move |tx| {
-            let (id, hash, signature, encoded) =
-                (id.clone(), hash.clone(), signature.clone(), encoded.clone());
+            let (record, signature, encoded, vector) = (
+                record.clone(),
+                signature.clone(),
+                encoded.clone(),
+                vector.clone(),
+            );
             Box::pin(async move {
+                let id = &record.id;
                 let rows = tx
                     .execute(
                         "UPDATE models SET record = $3::text::jsonb, signature = $4 \
                          WHERE id = $1 AND content_hash = $2",
-                        &[&id.as_str(), &&*hash, &&*encoded, &&*signature],
+                        &[&id.as_str(), &record.content_hash, &&*encoded, &&*signature],
                     )
                     .await
                     .map_err(backend)?;
                 let updated = rows == 1;
-                Ok((updated, updated.then_some(Change::Model(id))))
+                if let (true, Some(vector)) = (updated, &vector) {
+                    put_vector(tx, &record, vector).await?;
+                }
+                Ok((updated, updated.then(|| Change::Model(id.clone()))))
             })
         })
     }
@@ -899,6 +914,10 @@ impl super::Store for PostgresStore {
         Ok(rows.iter().map(|row| (row.get(0), row.get(1))).collect())
     }
 
+    fn first_stage(&self) -> Option<&dyn FirstStage> {
+        self.vectors.as_ref().map(|_| self as _)
+    }
+
     fn shared(&self) -> Option<&dyn Shared> {
         Some(self)
     }
@@ -982,6 +1001,246 @@ impl Shared for PostgresStore {
     fn try_lock(&self, name: &str) -> StoreResult<Option<Box<dyn Send>>> {
         let lock = self.advisory_lock(name, "SELECT 1, pg_try_advisory_lock($1)")?;
         Ok(lock.map(|lock| Box::new(lock) as Box<dyn Send>))
+    }
+}
+
+/// A model's first-stage vector as a write keeps it: the key of the parameters it was made
+/// for, and the vector (`None` for a signature without one).
+type KeptVector = Arc<(String, Option<pgvector::Vector>)>;
+
+/// The name of the lock held while a replica makes the vectors the first stage lacks.
+const FILLING: &str = "first stage vectors";
+
+impl PostgresStore {
+    /// Keeps a first stage of ranking in the database (`--index pgvector`, #40): a table of
+    /// one `spec` vector per model under pgvector's HNSW index for the L1 distance, written in
+    /// the transaction that writes the model. Vectors missing or made for other parameters
+    /// (another `spec.key`) are made now, by one replica at a time. Needs the `vector`
+    /// extension on the server; the table is made here rather than by a migration, as only
+    /// this mode needs the extension, and its width follows the extraction parameters.
+    pub fn with_first_stage(mut self, spec: VectorSpec) -> StoreResult<Self> {
+        let dimensions = spec.dimensions;
+        self.run(move |pool| async move { prepare_vectors(&pool, dimensions).await })?;
+        self.vectors = Some(spec);
+        let _filling = self.lock(FILLING)?;
+        self.fill_vectors()?;
+        self.run(|pool| async move { index_vectors(&pool).await })?;
+        Ok(self)
+    }
+
+    /// The vector `signature` is kept with, when the store keeps a first stage.
+    fn vector_of(&self, signature: &[u8]) -> Option<KeptVector> {
+        let spec = self.vectors.as_ref()?;
+        let vector = (spec.vector)(signature).map(pgvector::Vector::from);
+        Some(Arc::new((spec.key.clone(), vector)))
+    }
+
+    /// Makes the vectors of the models without one of today's key, a page at a time.
+    fn fill_vectors(&self) -> StoreResult<()> {
+        let key = self.vectors.as_ref().expect("kept").key.clone();
+        let counts = self.query(
+            "SELECT count(*) FILTER (WHERE v.id IS NULL OR v.made_for <> $1), count(*) \
+             FROM models m LEFT JOIN model_vectors v USING (id)",
+            vec![Param::Text(key.clone())],
+        )?;
+        let (missing, models): (i64, i64) = (counts[0].get(0), counts[0].get(1));
+        if missing * 10 > models {
+            // Built again at once after: faster than kept up row by row.
+            self.query("DROP INDEX IF EXISTS model_vectors_l1", vec![])?;
+        }
+        let (mut made, mut after) = (0usize, String::new());
+        loop {
+            let rows = self.query(
+                "SELECT m.id, m.signature, m.record::text FROM models m \
+                 LEFT JOIN model_vectors v USING (id) \
+                 WHERE (v.id IS NULL OR v.made_for <> $1) AND m.id > $2 ORDER BY m.id LIMIT $3",
+                vec![
+                    Param::Text(key.clone()),
+                    Param::Text(after.clone()),
+                    Param::Int(PAGE),
+                ],
+            )?;
+            let Some(last) = rows.last() else {
+                break;
+            };
+            after = last.get::<_, &str>(0).to_string();
+            let page: Vec<(ModelRecord, KeptVector)> = rows
+                .iter()
+                .map(|row| {
+                    let id: &str = row.get(0);
+                    let record = decode_record(id, row.get(2))?;
+                    Ok((record, self.vector_of(row.get(1)).expect("kept")))
+                })
+                .collect::<StoreResult<_>>()?;
+            made += page.len();
+            let page = Arc::new(page);
+            self.transaction(move |tx| {
+                let page = page.clone();
+                Box::pin(async move {
+                    for (record, vector) in page.iter() {
+                        put_vector(tx, record, vector).await?;
+                    }
+                    Ok(((), None))
+                })
+            })?;
+        }
+        if made > 0 {
+            tracing::info!(models = made, "made the first stage's vectors");
+        }
+        Ok(())
+    }
+}
+
+/// Makes the extension, the table of vectors and its index if missing; a table of another
+/// width (other extraction parameters) is made again.
+async fn prepare_vectors(pool: &Pool, dimensions: usize) -> StoreResult<()> {
+    let client = pool.get().await.map_err(pool_error)?;
+    client
+        .execute("SELECT pg_advisory_lock($1)", &[&MIGRATION_LOCK])
+        .await
+        .map_err(backend)?;
+    let result = async {
+        client
+            .batch_execute("CREATE EXTENSION IF NOT EXISTS vector")
+            .await
+            .map_err(|_| {
+                StoreError::Config(
+                    "--index pgvector needs the pgvector extension on the PostgreSQL server \
+                     (https://github.com/pgvector/pgvector; CREATE EXTENSION vector)"
+                        .to_string(),
+                )
+            })?;
+        let width: Option<i32> = client
+            .query_opt(
+                "SELECT atttypmod FROM pg_attribute \
+                 WHERE attrelid = to_regclass('model_vectors') AND attname = 'v'",
+                &[],
+            )
+            .await
+            .map_err(backend)?
+            .map(|row| row.get(0));
+        if width.is_some_and(|w| w != dimensions as i32) {
+            client
+                .batch_execute("DROP TABLE model_vectors")
+                .await
+                .map_err(backend)?;
+        }
+        // One row per model (`v` NULL for a model without a vector); its tags beside it, for
+        // a filtered scan of the index to test without a join.
+        client
+            .batch_execute(&format!(
+                "CREATE TABLE IF NOT EXISTS model_vectors ( \
+                   id text COLLATE \"C\" PRIMARY KEY REFERENCES models ON DELETE CASCADE, \
+                   made_for text NOT NULL, \
+                   tags text[] NOT NULL, \
+                   v vector({dimensions}))"
+            ))
+            .await
+            .map_err(backend)
+    }
+    .await;
+    client
+        .execute("SELECT pg_advisory_unlock($1)", &[&MIGRATION_LOCK])
+        .await
+        .map_err(backend)?;
+    result
+}
+
+/// Builds the HNSW index of the vectors for the L1 distance if it is missing: a graph built
+/// in memory when it fits in `maintenance_work_mem` (~1 KB a model), ten times faster than
+/// one that does not.
+async fn index_vectors(pool: &Pool) -> StoreResult<()> {
+    let client = pool.get().await.map_err(pool_error)?;
+    let clock = std::time::Instant::now();
+    client
+        .batch_execute(
+            "SET maintenance_work_mem = '1GB'; \
+             CREATE INDEX IF NOT EXISTS model_vectors_l1 ON model_vectors \
+               USING hnsw (v vector_l1_ops); \
+             RESET maintenance_work_mem",
+        )
+        .await
+        .map_err(backend)?;
+    tracing::debug!(
+        seconds = clock.elapsed().as_secs_f64(),
+        "the first stage's index is ready"
+    );
+    Ok(())
+}
+
+/// Keeps `record`'s vector (and tags) in the first stage's table.
+async fn put_vector(
+    tx: &Transaction<'_>,
+    record: &ModelRecord,
+    kept: &KeptVector,
+) -> StoreResult<()> {
+    let (key, vector) = &**kept;
+    tx.execute(
+        "INSERT INTO model_vectors (id, made_for, tags, v) VALUES ($1, $2, $3, $4) \
+         ON CONFLICT (id) DO UPDATE SET made_for = EXCLUDED.made_for, tags = EXCLUDED.tags, \
+         v = EXCLUDED.v",
+        &[&record.id.as_str(), key, &record.tags, vector],
+    )
+    .await
+    .map_err(backend)?;
+    Ok(())
+}
+
+impl FirstStage for PostgresStore {
+    fn nearest(
+        &self,
+        vector: &[f32],
+        count: usize,
+        tag: Option<&str>,
+        without: Option<&str>,
+    ) -> StoreResult<Vec<Candidate>> {
+        let vector = Arc::new(pgvector::Vector::from(vector.to_vec()));
+        let (tag, without) = (tag.map(str::to_string), without.map(str::to_string));
+        // pgvector's range; an iterative scan goes on past it when a filter or the limit needs.
+        let search = count.clamp(40, 1000);
+        let count = count as i64;
+        self.transaction(move |tx| {
+            let (vector, tag, without) = (vector.clone(), tag.clone(), without.clone());
+            Box::pin(async move {
+                tx.batch_execute(&format!(
+                    "SET LOCAL hnsw.ef_search = {search}; \
+                     SET LOCAL hnsw.iterative_scan = relaxed_order"
+                ))
+                .await
+                .map_err(backend)?;
+                let rows = tx
+                    .query(
+                        "SELECT n.id, m.signature FROM ( \
+                           SELECT id, v <+> $1 AS d FROM model_vectors \
+                           WHERE ($2::text IS NULL OR tags @> ARRAY[$2::text]) \
+                             AND ($3::text IS NULL OR id <> $3::text) \
+                           ORDER BY v <+> $1 LIMIT $4) n \
+                         JOIN models m USING (id) ORDER BY n.d, n.id",
+                        &[&*vector, &tag, &without, &count],
+                    )
+                    .await
+                    .map_err(backend)?;
+                let candidates = rows
+                    .iter()
+                    .map(|row| {
+                        Ok(Candidate {
+                            id: parse_id(row.get(0))?,
+                            signature: row.get(1),
+                        })
+                    })
+                    .collect::<StoreResult<_>>()?;
+                Ok((candidates, None))
+            })
+        })
+    }
+
+    fn without_vectors(&self) -> StoreResult<usize> {
+        let rows = self.query(
+            "SELECT count(*) FROM models m LEFT JOIN model_vectors v USING (id) \
+             WHERE v.v IS NULL",
+            vec![],
+        )?;
+        Ok(rows[0].get::<_, i64>(0) as usize)
     }
 }
 

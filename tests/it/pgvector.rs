@@ -1,0 +1,155 @@
+//! The hybrid's first stage in PostgreSQL (`--index pgvector`, #40): on a catalogue the
+//! oversampling covers, the same ranking as the exact in-memory index, said to be
+//! approximate; filters, the model itself left out, deletes and edits honoured.
+
+use std::sync::Arc;
+
+use axum::http::StatusCode;
+use salient_server::api::config::FirstStageKind;
+use salient_server::api::{first_stage, App, Config};
+use salient_server::store::{PostgresStore, Store};
+use serde_json::Value;
+
+use crate::app::TestApp;
+use crate::server::obj;
+use crate::shapes;
+use crate::stores::fresh_database_url;
+
+/// A service on `url` whose first stage runs where `index` says.
+fn service(url: &str, index: FirstStageKind) -> TestApp {
+    let config = Config {
+        index,
+        ..Config::default()
+    };
+    let store = PostgresStore::open(url).expect("the test database opens");
+    let store = match index {
+        FirstStageKind::Memory => store,
+        FirstStageKind::Pgvector => store
+            .with_first_stage(first_stage::spec(&config.params))
+            .expect("the server has pgvector"),
+    };
+    TestApp::serving(App::new(config, Arc::new(store)).expect("the service starts"))
+}
+
+/// Tubes, cones and stars, tagged by kind.
+fn catalogue() -> Vec<(String, &'static str, Vec<u8>)> {
+    let mut models = Vec::new();
+    for (i, r) in [0.15, 0.2, 0.3, 0.4].into_iter().enumerate() {
+        models.push((format!("tube{i}"), "tube", obj(&shapes::tube(r, 20, 16))));
+    }
+    for (i, beta) in [0.5, 0.8, 1.1].into_iter().enumerate() {
+        models.push((format!("cone{i}"), "cone", obj(&shapes::cone(beta, 12, 24))));
+    }
+    models.push((
+        "star".into(),
+        "star",
+        obj(&shapes::star(2, &shapes::five_tips())),
+    ));
+    models
+}
+
+async fn ranked(app: &TestApp, path: &str) -> Value {
+    let response = app.get(path).send().await;
+    assert_eq!(response.status(), StatusCode::OK, "{path}");
+    response.json()
+}
+
+fn ids(body: &Value) -> Vec<(String, f64)> {
+    body["results"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|r| {
+            (
+                r["id"].as_str().unwrap().to_string(),
+                r["distance"].as_f64().unwrap(),
+            )
+        })
+        .collect()
+}
+
+postgres_only! {
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn the_first_stage_in_postgres_ranks_as_the_exact_index_where_it_covers_the_catalogue() {
+        let url = fresh_database_url();
+        let approximate = service(&url, FirstStageKind::Pgvector);
+        for (id, tag, bytes) in catalogue() {
+            let response = approximate.add(&format!("id={id}&tags={tag}"), "model/obj", bytes).await;
+            assert_eq!(response.status(), StatusCode::CREATED, "{id}");
+        }
+        // A replica started later on the same database, exact.
+        let exact = service(&url, FirstStageKind::Memory);
+        for path in [
+            "/v1/models/tube1/similar?k=5",
+            "/v1/models/cone0/similar?k=7",
+            "/v1/models/tube0/similar?k=3&tag=cone",
+        ] {
+            let (a, e) = (ranked(&approximate, path).await, ranked(&exact, path).await);
+            assert_eq!(a["approximate"], true, "{path}");
+            assert_eq!(e["approximate"], false, "{path}");
+            assert_eq!(ids(&a), ids(&e), "{path}");
+        }
+        let cones = ids(&ranked(&approximate, "/v1/models/tube0/similar?k=10&tag=cone").await);
+        assert_eq!(cones.len(), 3);
+        assert!(cones.iter().all(|(id, _)| id.starts_with("cone")), "{cones:?}");
+        let all = ids(&ranked(&approximate, "/v1/models/star/similar?k=10").await);
+        assert_eq!(all.len(), 7, "every other model, itself left out: {all:?}");
+        // Other methods and weights rank on the exact index.
+        let d2 = ranked(&approximate, "/v1/models/star/similar?method=d2").await;
+        assert_eq!(d2["approximate"], false);
+
+        // A deleted model leaves the first stage; an edited tag moves a model's filter.
+        let deleted = approximate.delete("/v1/models/cone1").send().await;
+        assert_eq!(deleted.status(), StatusCode::NO_CONTENT);
+        let edited = approximate
+            .request_with_method("PATCH", "/v1/models/tube3")
+            .header("content-type", "application/json")
+            .body(r#"{"tags": ["cone"]}"#)
+            .send()
+            .await;
+        assert_eq!(edited.status(), StatusCode::OK);
+        let mut cones: Vec<String> = ids(&ranked(&approximate, "/v1/models/tube0/similar?k=10&tag=cone").await)
+            .into_iter()
+            .map(|(id, _)| id)
+            .collect();
+        cones.sort();
+        assert_eq!(cones, ["cone0", "cone2", "tube3"]);
+    }
+}
+
+postgres_only! {
+    /// Vectors made for other weights are made again when a replica opens the first stage,
+    /// and a replica without the first stage cannot serve `index = "pgvector"`.
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn the_first_stage_is_made_again_for_other_weights_and_required_by_its_mode() {
+        let url = fresh_database_url();
+        {
+            let app = service(&url, FirstStageKind::Pgvector);
+            let response = app.add("id=m", "model/obj", obj(&shapes::tube(0.3, 20, 16))).await;
+            assert_eq!(response.status(), StatusCode::CREATED);
+        }
+        let made_for = || async {
+            let (client, connection) = tokio_postgres::connect(&url, tokio_postgres::NoTls)
+                .await
+                .unwrap();
+            tokio::spawn(connection);
+            let row = client.query_one("SELECT made_for FROM model_vectors", &[]).await.unwrap();
+            row.get::<_, String>(0)
+        };
+        let mut params = salient_core::Params::default();
+        assert_eq!(made_for().await, first_stage::spec(&params).key);
+        params.similarity.hybrid.lfd.weight *= 2.0;
+        let spec = first_stage::spec(&params);
+        let store = PostgresStore::open(&url).unwrap().with_first_stage(spec.clone()).unwrap();
+        assert_eq!(made_for().await, spec.key);
+        assert_eq!(store.first_stage().unwrap().without_vectors().unwrap(), 0);
+
+        let config = Config {
+            index: FirstStageKind::Pgvector,
+            ..Config::default()
+        };
+        let plain = PostgresStore::open(&url).unwrap();
+        let refused = App::new(config, Arc::new(plain)).err().expect("refused");
+        assert!(refused.to_string().contains("--index pgvector"), "{refused}");
+    }
+}
