@@ -300,6 +300,8 @@ struct Run {
     latencies: Vec<Duration>,
     search_ms: Vec<f64>,
     evaluated: Vec<f64>,
+    /// With `--index pgvector`: the database's part of each `search_ms`.
+    first_stage_ms: Vec<f64>,
     elapsed: Duration,
 }
 
@@ -328,6 +330,7 @@ where
                     start.elapsed(),
                     body["timings"]["search_ms"].as_f64(),
                     body["evaluated"].as_f64(),
+                    body["timings"]["first_stage_ms"].as_f64(),
                 ));
             }
         });
@@ -336,13 +339,15 @@ where
         latencies: Vec::new(),
         search_ms: Vec::new(),
         evaluated: Vec::new(),
+        first_stage_ms: Vec::new(),
         elapsed: Duration::ZERO,
     };
     while let Some(mine) = clients.join_next().await {
-        for (latency, search_ms, evaluated) in mine.expect("a client task") {
+        for (latency, search_ms, evaluated, first_stage_ms) in mine.expect("a client task") {
             run.latencies.push(latency);
             run.search_ms.extend(search_ms);
             run.evaluated.extend(evaluated);
+            run.first_stage_ms.extend(first_stage_ms);
         }
     }
     run.elapsed = clock.elapsed();
@@ -363,6 +368,7 @@ struct Figures {
     p99: f64,
     search_p50: f64,
     search_p99: f64,
+    first_stage_p50: f64,
 }
 
 /// Prints a table row of the run and returns its figures.
@@ -377,6 +383,7 @@ fn report(models: usize, what: &str, mut run: Run) -> Figures {
         p99: percentile_ms(&mut ms, 0.99),
         search_p50: percentile_ms(&mut run.search_ms, 0.5),
         search_p99: percentile_ms(&mut run.search_ms, 0.99),
+        first_stage_p50: percentile_ms(&mut run.first_stage_ms, 0.5),
     };
     println!(
         "| {models} | {what} | {} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.0} |",
@@ -585,6 +592,8 @@ fn replicas(
                 "heldout_rank_p50_ms": held_out.search_p50,
                 "heldout_rank_p99_ms": held_out.search_p99,
                 "heldout_request_p50_ms": held_out.p50,
+                "similar_first_stage_p50_ms": stored.first_stage_p50,
+                "heldout_first_stage_p50_ms": held_out.first_stage_p50,
             }
         },
         "write_visible_on_other_p50_ms": visible_p50,

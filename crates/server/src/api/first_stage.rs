@@ -14,7 +14,7 @@ use super::App;
 use crate::store::{Candidate, VectorSpec};
 use salient_core::params::{Params, SimilarityParams};
 use salient_core::rank::vectors::{self, Layout};
-use salient_core::rank::{distance, Hit, Method};
+use salient_core::rank::{Hit, Index, Method, Request, Row, Search};
 use salient_core::signature::Signature;
 
 /// How the store makes the vectors: the pooled rows under the ranking parameters `params`
@@ -39,8 +39,11 @@ fn vector(signature: &Signature, params: &SimilarityParams) -> Option<Vec<f32>> 
 /// A ranking of the first stage's candidates.
 pub struct Ranked {
     pub hits: Vec<Hit>,
-    /// Candidates whose exact distance was computed.
+    /// Candidates whose exact distance was computed, and those rejected by a bound.
     pub evaluated: usize,
+    pub pruned: usize,
+    /// Time in the database.
+    pub first_stage_ms: f64,
 }
 
 /// The `k` models nearest `query` by the hybrid distance among the first stage's candidates
@@ -64,36 +67,43 @@ pub async fn rank(
         .saturating_mul(config.first_stage_oversampling)
         .min(config.first_stage_max_candidates)
         .max(k);
+    let clock = std::time::Instant::now();
     let candidates = app
         .with_store(move |store| {
             let stage = store.first_stage().expect("checked at start");
             stage.nearest(&vector, count, tag.as_deref(), without.as_deref())
         })
         .await?;
-    let app = app.clone();
+    let first_stage_ms = clock.elapsed().as_secs_f64() * 1e3;
+    let dir = config.shelf_dir.clone().unwrap_or_else(std::env::temp_dir);
     let turn = app.rankers.turn().await;
     tokio::task::spawn_blocking(move || {
         turn.install(|| {
-            let mut scored: Vec<Hit> = candidates
+            // The candidates ranked as the in-memory index ranks all models: bounds first,
+            // the exact distance of the few they cannot reject.
+            let mut index = Index::shelved_in(params, dir);
+            let rows: Vec<Row> = candidates
                 .par_iter()
                 .filter_map(|Candidate { id, signature }| {
                     let signature = Signature::from_bytes(signature).ok()?;
-                    Some(Hit {
-                        id: id.to_string(),
-                        distance: distance(Method::Hybrid, &query, &signature, &params),
-                        part_scale: None,
-                    })
+                    Some(index.row(id.as_str(), &signature))
                 })
-                .collect();
-            let evaluated = scored.len();
-            scored.sort_by(|a, b| a.distance.total_cmp(&b.distance).then(a.id.cmp(&b.id)));
-            scored.truncate(k);
-            Ranked {
-                hits: scored,
-                evaluated,
+                .collect::<std::io::Result<_>>()
+                .map_err(AppError::index)?;
+            for row in rows {
+                index.put(row);
             }
+            let ranking = index
+                .search(&Request::model(&query, Method::Hybrid, k))
+                .map_err(AppError::index)?;
+            Ok(Ranked {
+                hits: ranking.hits,
+                evaluated: ranking.evaluated,
+                pruned: ranking.pruned,
+                first_stage_ms,
+            })
         })
     })
     .await
-    .map_err(|e| AppError::Internal(format!("ranking failed: {e}")))
+    .map_err(|e| AppError::Internal(format!("ranking failed: {e}")))?
 }

@@ -167,6 +167,10 @@ pub struct QueryFeature {
 pub struct Timings {
     pub extract_ms: f64,
     pub search_ms: f64,
+    /// With `--index pgvector`: the part of `search_ms` spent in the database, finding the
+    /// candidates and reading their signatures.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub first_stage_ms: Option<f64>,
     pub total_ms: f64,
 }
 
@@ -368,6 +372,7 @@ async fn search_part(
         timings: Timings {
             extract_ms,
             search_ms: search_seconds * 1e3,
+            first_stage_ms: None,
             total_ms: clock.elapsed().as_secs_f64() * 1e3,
         },
     }))
@@ -493,6 +498,7 @@ async fn rank(
     let approximate = app.config.index == FirstStageKind::Pgvector
         && method == Method::Hybrid
         && params == app.config.params.similarity;
+    let mut first_stage_ms = None;
     let results = if approximate {
         let ranked = first_stage::rank(
             app,
@@ -510,7 +516,8 @@ async fn rank(
         };
         let Coverage { left_out, partial } = catalog.index.coverage(method, &scope);
         let results = search_hits(&catalog, ranked.hits);
-        (results, ranked.evaluated, 0, left_out, partial)
+        first_stage_ms = Some(ranked.first_stage_ms);
+        (results, ranked.evaluated, ranked.pruned, left_out, partial)
     } else {
         app.read_catalog(move |catalog| {
             let tagged = tagged(catalog, &tag);
@@ -574,6 +581,7 @@ async fn rank(
         timings: Timings {
             extract_ms,
             search_ms: search_seconds * 1e3,
+            first_stage_ms,
             total_ms: clock.elapsed().as_secs_f64() * 1e3,
         },
     }))

@@ -1148,7 +1148,8 @@ async fn prepare_vectors(pool: &Pool, dimensions: usize) -> StoreResult<()> {
 
 /// Builds the HNSW index of the vectors for the L1 distance if it is missing: a graph built
 /// in memory when it fits in `maintenance_work_mem` (~1 KB a model), ten times faster than
-/// one that does not.
+/// one that does not. Denser than pgvector's defaults (m 16, ef_construction 64), which
+/// found 0.90 of the exact top 10 at 100 000 models whose near copies crowd together.
 async fn index_vectors(pool: &Pool) -> StoreResult<()> {
     let client = pool.get().await.map_err(pool_error)?;
     let clock = std::time::Instant::now();
@@ -1156,7 +1157,7 @@ async fn index_vectors(pool: &Pool) -> StoreResult<()> {
         .batch_execute(
             "SET maintenance_work_mem = '1GB'; \
              CREATE INDEX IF NOT EXISTS model_vectors_l1 ON model_vectors \
-               USING hnsw (v vector_l1_ops); \
+               USING hnsw (v vector_l1_ops) WITH (m = 24, ef_construction = 200); \
              RESET maintenance_work_mem",
         )
         .await
