@@ -283,20 +283,10 @@ fn hybrid_weights_load_from_parameters() {
     }
 }
 
-/// The hybrid's bound-pruned ranking is the full scan's, whatever the weights, also over
-/// entries that lack a light field descriptor.
-#[test]
-fn hybrid_pruning_never_changes_the_top_k() {
-    let mut collection = synthetic::collection(1000, 20, 4);
-    synthetic::with_descriptors(&mut collection, 20, 5);
-    for (_, s) in collection.iter_mut().step_by(17) {
-        s.lfd = None;
-    }
-    let mut queries = synthetic::collection(5, 20, 6);
-    synthetic::with_descriptors(&mut queries, 20, 7);
+/// The default weights and three others, some leaving parts out (weight 0).
+fn weightings() -> [HybridParams; 4] {
     let term = |weight, scale| Term { weight, scale };
-    let mut pruned = 0;
-    for hybrid in [
+    [
         HybridParams::default(),
         HybridParams {
             ecc: term(1.0, 0.3),
@@ -319,7 +309,22 @@ fn hybrid_pruning_never_changes_the_top_k() {
             geodesic: term(1.0, 0.05),
             penalty_power: 0.0,
         },
-    ] {
+    ]
+}
+
+/// The hybrid's bound-pruned ranking is the full scan's, whatever the weights, also over
+/// entries that lack a light field descriptor.
+#[test]
+fn hybrid_pruning_never_changes_the_top_k() {
+    let mut collection = synthetic::collection(1000, 20, 4);
+    synthetic::with_descriptors(&mut collection, 20, 5);
+    for (_, s) in collection.iter_mut().step_by(17) {
+        s.lfd = None;
+    }
+    let mut queries = synthetic::collection(5, 20, 6);
+    synthetic::with_descriptors(&mut queries, 20, 7);
+    let mut pruned = 0;
+    for hybrid in weightings() {
         let mut params = Params::default().similarity;
         params.hybrid = hybrid.clone();
         let mut index = Index::new(params);
@@ -597,17 +602,7 @@ fn first_stage_rows_bound_the_hybrid_distance() {
     use salient_core::rank::vectors::{self, Layout};
     let mut collection = synthetic::collection(60, 6, 21);
     synthetic::with_descriptors(&mut collection, 6, 22);
-    let term = |weight, scale| Term { weight, scale };
-    for hybrid in [
-        HybridParams::default(),
-        HybridParams {
-            ecc: term(1.0, 0.3),
-            d2: term(1.0, 0.1),
-            lfd: term(1.0, 0.04),
-            geodesic: term(0.5, 0.05),
-            penalty_power: 0.5,
-        },
-    ] {
+    for hybrid in weightings() {
         let mut params = Params::default().similarity;
         params.hybrid = hybrid;
         let rows: Vec<Vec<Vec<f32>>> = collection
