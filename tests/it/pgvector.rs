@@ -5,6 +5,7 @@
 use std::sync::Arc;
 
 use axum::http::StatusCode;
+use salient_core::Signature;
 use salient_server::api::config::FirstStageKind;
 use salient_server::api::{first_stage, App, Config};
 use salient_server::store::{PostgresStore, Store};
@@ -118,8 +119,9 @@ postgres_only! {
 }
 
 postgres_only! {
-    /// Vectors made for other weights are made again when a replica opens the first stage,
-    /// and a replica without the first stage cannot serve `index = "pgvector"`.
+    /// Vectors made for other weights are made again when a replica opens the first stage; a
+    /// stale model has none and is ranked exactly; a replica without the first stage cannot
+    /// serve `index = "pgvector"`.
     #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
     async fn the_first_stage_is_made_again_for_other_weights_and_required_by_its_mode() {
         let url = fresh_database_url();
@@ -143,6 +145,18 @@ postgres_only! {
         let store = PostgresStore::open(&url).unwrap().with_first_stage(spec.clone()).unwrap();
         assert_eq!(made_for().await, spec.key);
         assert_eq!(store.first_stage().unwrap().without_vectors().unwrap(), 0);
+
+        // A model stored before a descriptor existed has no vector: left out of the first
+        // stage (`without_vectors`), and its `similar` ranked exactly.
+        let record = store.get("m").unwrap().unwrap();
+        let mut signature = Signature::from_bytes(&store.signature("m").unwrap().unwrap()).unwrap();
+        signature.geodesic = None;
+        assert!(store.update_model(&record, &signature.to_bytes()).unwrap());
+        assert_eq!(store.first_stage().unwrap().without_vectors().unwrap(), 1);
+        drop(store);
+        let app = service(&url, FirstStageKind::Pgvector);
+        let body = ranked(&app, "/v1/models/m/similar").await;
+        assert_eq!(body["approximate"], false, "{body}");
 
         let config = Config {
             index: FirstStageKind::Pgvector,

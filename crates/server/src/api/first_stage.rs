@@ -47,20 +47,18 @@ pub struct Ranked {
 }
 
 /// The `k` models nearest `query` by the hybrid distance among the first stage's candidates
-/// that have `tag`, `without` left out.
+/// that have `tag`, `without` left out; `None` for a query without a vector (a stored model
+/// made before a descriptor existed), which the caller ranks on the exact index.
 pub async fn rank(
     app: &Arc<App>,
     query: Arc<Signature>,
     k: usize,
     tag: Option<String>,
     without: Option<String>,
-) -> Result<Ranked, AppError> {
+) -> Result<Option<Ranked>, AppError> {
     let params = app.config.params.similarity.clone();
     let Some(vector) = vector(&query, &params) else {
-        // A query is extracted today: it has every descriptor.
-        return Err(AppError::Internal(
-            "a query without a first-stage vector".into(),
-        ));
+        return Ok(None);
     };
     let config = &app.config;
     let count = k
@@ -96,12 +94,12 @@ pub async fn rank(
             let ranking = index
                 .search(&Request::model(&query, Method::Hybrid, k))
                 .map_err(AppError::index)?;
-            Ok(Ranked {
+            Ok(Some(Ranked {
                 hits: ranking.hits,
                 evaluated: ranking.evaluated,
                 pruned: ranking.pruned,
                 first_stage_ms,
-            })
+            }))
         })
     })
     .await

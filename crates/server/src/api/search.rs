@@ -495,19 +495,18 @@ async fn rank(
             .collect(),
     });
     let explained = explain_hits.then(|| (query.clone(), params.clone()));
-    let approximate = app.config.index == FirstStageKind::Pgvector
+    let in_database = app.config.index == FirstStageKind::Pgvector
         && method == Method::Hybrid
         && params == app.config.params.similarity;
+    let ranked = if in_database {
+        let without = exclude.as_ref().map(ModelId::to_string);
+        first_stage::rank(app, query.clone(), k, tag.clone(), without).await?
+    } else {
+        None
+    };
+    let approximate = ranked.is_some();
     let mut first_stage_ms = None;
-    let results = if approximate {
-        let ranked = first_stage::rank(
-            app,
-            query.clone(),
-            k,
-            tag.clone(),
-            exclude.as_ref().map(ModelId::to_string),
-        )
-        .await?;
+    let results = if let Some(ranked) = ranked {
         let catalog = app.catalog.snapshot();
         let tagged = tagged(&catalog, &tag);
         let scope = Scope {
