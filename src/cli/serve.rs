@@ -9,7 +9,7 @@ use anyhow::Context;
 use salient_core::display::UpAxis;
 use salient_server::api::config::{FirstStageKind, Secret};
 use salient_server::api::{app, first_stage, App, AppState, Config};
-use salient_server::store::{PostgresStore, SledStore, Store};
+use salient_server::store::{SledStore, Store};
 
 /// Flags override the environment (`SALIENT_*`), which overrides the configuration file,
 /// which overrides the defaults. API keys come from `SALIENT_API_KEYS` (`SCOPE:KEY,…`; scopes
@@ -157,14 +157,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             std::fs::create_dir_all(&config.data).with_context(|| {
                 format!("cannot make the cache folder {}", config.data.display())
             })?;
-            let store =
-                PostgresStore::open(url).context("cannot open the PostgreSQL store (--store)")?;
-            Arc::new(match config.index {
-                FirstStageKind::Memory => store,
-                FirstStageKind::Pgvector => store
-                    .with_first_stage(first_stage::spec(&config.params))
-                    .context("cannot keep the first stage in the PostgreSQL store (--index)")?,
-            })
+            Arc::new(
+                first_stage::open_store(url, &config)
+                    .context("cannot open the PostgreSQL store (--store)")?,
+            )
         }
         None => Arc::new(
             SledStore::open(&config.data)

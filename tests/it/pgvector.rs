@@ -16,19 +16,13 @@ use crate::server::obj;
 use crate::shapes;
 use crate::stores::fresh_database_url;
 
-/// A service on `url` whose first stage runs where `index` says.
+/// A service on `url` whose first stage runs where `index` says, as `salient serve` opens it.
 fn service(url: &str, index: FirstStageKind) -> TestApp {
     let config = Config {
         index,
         ..Config::default()
     };
-    let store = PostgresStore::open(url).expect("the test database opens");
-    let store = match index {
-        FirstStageKind::Memory => store,
-        FirstStageKind::Pgvector => store
-            .with_first_stage(first_stage::spec(&config.params))
-            .expect("the server has pgvector"),
-    };
+    let store = first_stage::open_store(url, &config).expect("the test database opens");
     TestApp::serving(App::new(config, Arc::new(store)).expect("the service starts"))
 }
 
@@ -90,6 +84,14 @@ postgres_only! {
             assert_eq!(e["approximate"], false, "{path}");
             assert_eq!(ids(&a), ids(&e), "{path}");
         }
+        // A model written by the exact replica is in the first stage too.
+        let response = exact.add("id=late&tags=cone", "model/obj", obj(&shapes::cone(0.9, 12, 24))).await;
+        assert_eq!(response.status(), StatusCode::CREATED);
+        let late = ids(&ranked(&approximate, "/v1/models/cone0/similar?k=10").await);
+        assert!(late.iter().any(|(id, _)| id == "late"), "{late:?}");
+        let deleted = exact.delete("/v1/models/late").send().await;
+        assert_eq!(deleted.status(), StatusCode::NO_CONTENT);
+
         let cones = ids(&ranked(&approximate, "/v1/models/tube0/similar?k=10&tag=cone").await);
         assert_eq!(cones.len(), 3);
         assert!(cones.iter().all(|(id, _)| id.starts_with("cone")), "{cones:?}");

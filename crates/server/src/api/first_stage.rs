@@ -9,9 +9,10 @@ use std::sync::Arc;
 
 use rayon::prelude::*;
 
+use super::config::{Config, FirstStageKind};
 use super::error::AppError;
 use super::App;
-use crate::store::{Candidate, VectorSpec};
+use crate::store::{Candidate, PostgresStore, StoreError, VectorSpec};
 use salient_core::params::{Params, SimilarityParams};
 use salient_core::rank::vectors::{self, Layout};
 use salient_core::rank::{Hit, Index, Method, Request, Row, Search};
@@ -29,6 +30,18 @@ pub fn spec(params: &Params) -> VectorSpec {
             let signature = Signature::from_bytes(bytes).ok()?;
             vector(&signature, &similarity)
         }),
+    }
+}
+
+/// The PostgreSQL store at `url` for a replica of `config`: keeping the first stage when its
+/// `index` ranks with it, and also when the database has one, so that the models this
+/// replica writes are not missing from the other replicas' first stage.
+pub fn open_store(url: &str, config: &Config) -> Result<PostgresStore, StoreError> {
+    let store = PostgresStore::open(url)?;
+    if config.index == FirstStageKind::Pgvector || store.has_first_stage()? {
+        store.with_first_stage(spec(&config.params))
+    } else {
+        Ok(store)
     }
 }
 

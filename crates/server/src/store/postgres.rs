@@ -1028,6 +1028,13 @@ impl PostgresStore {
         Ok(self)
     }
 
+    /// Whether the database keeps a first stage ([`PostgresStore::with_first_stage`]), which
+    /// every replica that writes must then keep whole, whatever its own `index`.
+    pub fn has_first_stage(&self) -> StoreResult<bool> {
+        let rows = self.query("SELECT to_regclass('model_vectors') IS NOT NULL", vec![])?;
+        Ok(rows[0].get(0))
+    }
+
     /// The vector `signature` is kept with, when the store keeps a first stage.
     fn vector_of(&self, signature: &[u8]) -> Option<KeptVector> {
         let spec = self.vectors.as_ref()?;
