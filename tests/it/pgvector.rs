@@ -132,29 +132,35 @@ postgres_only! {
             let response = app.add("id=m", "model/obj", obj(&shapes::tube(0.3, 20, 16))).await;
             assert_eq!(response.status(), StatusCode::CREATED);
         }
-        let made_for = || async {
+        // The one model's row: the weights its vector was made for, and whether it has one.
+        let kept = || async {
             let (client, connection) = tokio_postgres::connect(&url, tokio_postgres::NoTls)
                 .await
                 .unwrap();
             tokio::spawn(connection);
-            let row = client.query_one("SELECT made_for FROM model_vectors", &[]).await.unwrap();
-            row.get::<_, String>(0)
+            let row = client
+                .query_one("SELECT made_for, v IS NOT NULL FROM model_vectors", &[])
+                .await
+                .unwrap();
+            (row.get::<_, String>(0), row.get::<_, bool>(1))
         };
         let mut params = salient_core::Params::default();
-        assert_eq!(made_for().await, first_stage::spec(&params).key);
+        assert_eq!(kept().await, (first_stage::spec(&params).key, true));
         params.similarity.hybrid.lfd.weight *= 2.0;
         let spec = first_stage::spec(&params);
+        let mut other_w = params.clone();
+        other_w.similarity.ecc_weight /= 2.0;
+        assert_ne!(first_stage::spec(&other_w).key, spec.key, "the vectors depend on W too");
         let store = PostgresStore::open(&url).unwrap().with_first_stage(spec.clone()).unwrap();
-        assert_eq!(made_for().await, spec.key);
-        assert_eq!(store.first_stage().unwrap().without_vectors().unwrap(), 0);
+        assert_eq!(kept().await, (spec.key.clone(), true));
 
         // A model stored before a descriptor existed has no vector: left out of the first
-        // stage (`without_vectors`), and its `similar` ranked exactly.
+        // stage, and its `similar` ranked exactly.
         let record = store.get("m").unwrap().unwrap();
         let mut signature = Signature::from_bytes(&store.signature("m").unwrap().unwrap()).unwrap();
         signature.geodesic = None;
         assert!(store.update_model(&record, &signature.to_bytes()).unwrap());
-        assert_eq!(store.first_stage().unwrap().without_vectors().unwrap(), 1);
+        assert_eq!(kept().await, (spec.key.clone(), false));
         drop(store);
         let app = service(&url, FirstStageKind::Pgvector);
         let body = ranked(&app, "/v1/models/m/similar").await;

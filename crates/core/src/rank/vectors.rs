@@ -89,7 +89,7 @@ pub fn dimensions(params: &Params) -> usize {
 }
 
 /// The L1 distance of two rows.
-pub fn l1(a: &[f32], b: &[f32]) -> f64 {
+fn l1(a: &[f32], b: &[f32]) -> f64 {
     a.iter()
         .zip(b)
         .map(|(&x, &y)| f64::from((x - y).abs()))

@@ -19,10 +19,11 @@ use salient_core::rank::{Hit, Index, Method, Request, Row, Search};
 use salient_core::signature::Signature;
 
 /// How the store makes the vectors: the pooled rows under the ranking parameters `params`
-/// name, which a change of weights makes again.
+/// name, which a change of the weights they depend on (the hybrid's and `W`) makes again.
 pub fn spec(params: &Params) -> VectorSpec {
     let similarity = params.similarity.clone();
-    let key = serde_json::to_string(&similarity.hybrid).expect("parameters serialise");
+    let key = serde_json::to_string(&(similarity.ecc_weight, &similarity.hybrid))
+        .expect("parameters serialise");
     VectorSpec {
         dimensions: vectors::dimensions(params),
         key,

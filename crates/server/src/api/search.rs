@@ -258,6 +258,18 @@ fn tagged<'a>(catalog: &'a Snapshot, tag: &'a Option<String>) -> impl Fn(&str) -
     }
 }
 
+/// The models a ranking considers: those with `tag` ([`tagged`]), `without` left out.
+fn scope<'a>(
+    tag: &Option<String>,
+    tagged: &'a (dyn Fn(&str) -> bool + Sync),
+    without: Option<&'a str>,
+) -> Scope<'a> {
+    Scope {
+        without,
+        keep: tag.is_some().then_some(tagged),
+    }
+}
+
 /// Ranked hits with what the catalogue records of each.
 fn search_hits(catalog: &Snapshot, hits: Vec<Hit>) -> Vec<SearchHit> {
     hits.into_iter()
@@ -318,10 +330,7 @@ async fn search_part(
         .run(move || {
             let catalog = worker.catalog.snapshot();
             let tagged = tagged(&catalog, &tag);
-            let scope = Scope {
-                without: None,
-                keep: tag.is_some().then_some(&tagged as _),
-            };
+            let scope = scope(&tag, &tagged, None);
             let library = Stored {
                 app: &worker,
                 catalog: &catalog,
@@ -509,10 +518,7 @@ async fn rank(
     let results = if let Some(ranked) = ranked {
         let catalog = app.catalog.snapshot();
         let tagged = tagged(&catalog, &tag);
-        let scope = Scope {
-            without: exclude.as_ref().map(ModelId::as_str),
-            keep: tag.is_some().then_some(&tagged as _),
-        };
+        let scope = scope(&tag, &tagged, exclude.as_ref().map(ModelId::as_str));
         let Coverage { left_out, partial } = catalog.index.coverage(method, &scope);
         let results = search_hits(&catalog, ranked.hits);
         first_stage_ms = Some(ranked.first_stage_ms);
@@ -520,10 +526,7 @@ async fn rank(
     } else {
         app.read_catalog(move |catalog| {
             let tagged = tagged(catalog, &tag);
-            let scope = Scope {
-                without: exclude.as_ref().map(ModelId::as_str),
-                keep: tag.is_some().then_some(&tagged as _),
-            };
+            let scope = scope(&tag, &tagged, exclude.as_ref().map(ModelId::as_str));
             let ranking = catalog.index.search(
                 &Request::model(&query, method, k)
                     .params(&params)

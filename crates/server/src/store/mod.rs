@@ -187,8 +187,6 @@ pub trait FirstStage: Send + Sync {
         tag: Option<&str>,
         without: Option<&str>,
     ) -> StoreResult<Vec<Candidate>>;
-    /// How many models have no vector (their signatures lack a descriptor): left out.
-    fn without_vectors(&self) -> StoreResult<usize>;
 }
 
 /// The storage operations the service uses.

@@ -1241,15 +1241,6 @@ impl FirstStage for PostgresStore {
             })
         })
     }
-
-    fn without_vectors(&self) -> StoreResult<usize> {
-        let rows = self.query(
-            "SELECT count(*) FROM models m LEFT JOIN model_vectors v USING (id) \
-             WHERE v.v IS NULL",
-            vec![],
-        )?;
-        Ok(rows[0].get::<_, i64>(0) as usize)
-    }
 }
 
 impl PostgresStore {
