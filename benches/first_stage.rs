@@ -9,7 +9,8 @@
 //! (every fifth model of both collections, whose copies are not stored). Two catalogues: the
 //! load bench's, `SALIENT_FIRST_STAGE_SIZE` (100 000) perturbed copies of the base's models,
 //! which flatters recall (every query has near copies of its neighbours); and the base itself,
-//! where no model has a near copy.
+//! where no model has a near copy. `SALIENT_FIRST_STAGE_DUMP=DIR` also writes the pooled vectors
+//! and each query's exact top 10 as JSON lines, to try pgvector's indexes on them.
 
 #[path = "support/corpus.rs"]
 mod corpus;
@@ -117,6 +118,7 @@ fn measure(
     (params, calibrated): (&Params, &SimilarityParams),
 ) -> Value {
     let similarity = &params.similarity;
+    let dump = std::env::var_os("SALIENT_FIRST_STAGE_DUMP").map(std::path::PathBuf::from);
     let mut index = Index::new(similarity.clone());
     for (id, s) in catalogue {
         index.insert(id.as_str(), s).expect("shelved");
@@ -155,6 +157,15 @@ fn measure(
                 scored.into_iter().map(|(_, i)| i).collect()
             })
             .collect();
+        if let (Some(dir), Layout::Pooled, false) = (&dump, layout, calibrate) {
+            dump_vectors(
+                &dir.join(name.replace(' ', "-")),
+                catalogue,
+                &rows,
+                queries,
+                &truth,
+            );
+        }
         let mut curve = Vec::new();
         for o in OVERSAMPLING {
             let recall: f64 = queries
@@ -186,6 +197,34 @@ fn measure(
         out.insert(layout_name.to_string(), json!(curve));
     }
     json!({"models": catalogue.len(), "queries": queries.len(), "layouts": out})
+}
+
+/// `SALIENT_FIRST_STAGE_DUMP=DIR`: the pooled vectors of the catalogue and the queries, and
+/// the exact top 10 of each query, as JSON lines in `DIR/<catalogue>/`, for trying approximate
+/// indexes (pgvector's HNSW and IVFFlat) outside this bench: a query's recall@10 after exact
+/// reranking is the share of its top 10 among the candidates an index returns.
+fn dump_vectors(
+    dir: &Path,
+    catalogue: &[(String, Signature)],
+    rows: &[Vec<Vec<f32>>],
+    queries: &[Signature],
+    truth: &[Vec<String>],
+) {
+    use std::io::Write;
+    std::fs::create_dir_all(dir).expect("creates");
+    let mut out = std::io::BufWriter::new(
+        std::fs::File::create(dir.join("catalogue.jsonl")).expect("creates"),
+    );
+    for ((id, _), rows) in catalogue.iter().zip(rows) {
+        writeln!(out, "{}", json!({"id": id, "v": rows[0]})).expect("writes");
+    }
+    let mut out =
+        std::io::BufWriter::new(std::fs::File::create(dir.join("queries.jsonl")).expect("creates"));
+    let similarity = &Params::default().similarity;
+    for (q, truth) in queries.iter().zip(truth) {
+        let v = vectors::rows(q, similarity, Layout::Pooled).expect("current");
+        writeln!(out, "{}", json!({"v": v[0], "truth": truth})).expect("writes");
+    }
 }
 
 fn main() {
