@@ -161,7 +161,7 @@ fn measure(
             dump_vectors(
                 &dir.join(name.replace(' ', "-")),
                 catalogue,
-                &rows,
+                (&rows, weights),
                 queries,
                 &truth,
             );
@@ -206,7 +206,7 @@ fn measure(
 fn dump_vectors(
     dir: &Path,
     catalogue: &[(String, Signature)],
-    rows: &[Vec<Vec<f32>>],
+    (rows, weights): (&[Vec<Vec<f32>>], &SimilarityParams),
     queries: &[Signature],
     truth: &[Vec<String>],
 ) {
@@ -220,9 +220,8 @@ fn dump_vectors(
     }
     let mut out =
         std::io::BufWriter::new(std::fs::File::create(dir.join("queries.jsonl")).expect("creates"));
-    let similarity = &Params::default().similarity;
     for (q, truth) in queries.iter().zip(truth) {
-        let v = vectors::rows(q, similarity, Layout::Pooled).expect("current");
+        let v = vectors::rows(q, weights, Layout::Pooled).expect("current");
         writeln!(out, "{}", json!({"v": v[0], "truth": truth})).expect("writes");
     }
 }
