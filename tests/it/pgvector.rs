@@ -132,19 +132,44 @@ postgres_only! {
             let response = app.add("id=m", "model/obj", obj(&shapes::tube(0.3, 20, 16))).await;
             assert_eq!(response.status(), StatusCode::CREATED);
         }
-        // The one model's row: the weights its vector was made for, and whether it has one.
-        let kept = || async {
+        let client = || async {
             let (client, connection) = tokio_postgres::connect(&url, tokio_postgres::NoTls)
                 .await
                 .unwrap();
             tokio::spawn(connection);
-            let row = client
-                .query_one("SELECT made_for, v IS NOT NULL FROM model_vectors", &[])
+            client
+        };
+        // The one model's row: the weights it was made for, and whether it has a vector and
+        // a compact form.
+        let kept = || async {
+            let row = client()
+                .await
+                .query_one(
+                    "SELECT made_for, v IS NOT NULL AND compact IS NOT NULL FROM model_vectors",
+                    &[],
+                )
                 .await
                 .unwrap();
             (row.get::<_, String>(0), row.get::<_, bool>(1))
         };
         let mut params = salient_core::Params::default();
+        assert_eq!(kept().await, (first_stage::spec(&params).key, true));
+        // The table as the first release made it: no compact forms, its key without the
+        // form's version. Made again when a replica opens it.
+        let first_release = serde_json::to_string(&(
+            params.similarity.ecc_weight,
+            &params.similarity.hybrid,
+        ))
+        .unwrap();
+        client()
+            .await
+            .batch_execute(&format!(
+                "ALTER TABLE model_vectors DROP COLUMN compact; \
+                 UPDATE model_vectors SET made_for = '{first_release}'"
+            ))
+            .await
+            .unwrap();
+        drop(service(&url, FirstStageKind::Pgvector));
         assert_eq!(kept().await, (first_stage::spec(&params).key, true));
         params.similarity.hybrid.lfd.weight *= 2.0;
         let spec = first_stage::spec(&params);

@@ -627,3 +627,70 @@ fn first_stage_rows_bound_the_hybrid_distance() {
     featureless.geodesic = None;
     assert!(vectors::rows(&featureless, &params.similarity, Layout::Pooled).is_none());
 }
+
+/// An index of the first stage's candidates in their compact form (#40), its light field
+/// descriptors fetched when a ranking needs them, ranks as an index of the whole signatures,
+/// and fetches the descriptors a batch at a time, only for the few its bounds leave.
+#[test]
+fn compact_rows_with_descriptors_away_rank_as_whole_signatures() {
+    use salient_core::descriptor::LightFieldDescriptor;
+    use salient_core::rank::compact;
+    use std::collections::HashMap;
+    use std::sync::{Arc, Mutex};
+
+    let mut collection = synthetic::collection(800, 20, 31);
+    synthetic::with_descriptors(&mut collection, 20, 32);
+    // As stored: the compact form is made from stored signatures, quantised.
+    let stored: Vec<(String, Signature)> = collection
+        .into_iter()
+        .map(|(id, s)| (id, Signature::from_bytes(&s.to_bytes()).expect("reads")))
+        .collect();
+    let mut queries = synthetic::collection(6, 20, 33);
+    synthetic::with_descriptors(&mut queries, 20, 34);
+    let params = Params::default().similarity;
+    let mut whole = Index::new(params.clone());
+    for (id, s) in &stored {
+        whole.insert(id.as_str(), s).expect("shelved");
+    }
+    let descriptors: HashMap<Arc<str>, LightFieldDescriptor> = stored
+        .iter()
+        .map(|(id, s)| (Arc::from(id.as_str()), s.lfd.clone().expect("made")))
+        .collect();
+    let batches: Arc<Mutex<Vec<usize>>> = Arc::default();
+    let fetch: salient_core::rank::Fetch = {
+        let batches = batches.clone();
+        Arc::new(move |ids: &[Arc<str>]| {
+            batches.lock().unwrap().push(ids.len());
+            Ok(ids
+                .iter()
+                .map(|id| (id.clone(), descriptors[id].clone()))
+                .collect())
+        })
+    };
+    for (_, query) in &queries {
+        let mut away = Index::away(params.clone(), fetch.clone());
+        for (id, s) in &stored {
+            let row = away
+                .compact_row(id.as_str(), &compact::of(s))
+                .expect("reads");
+            away.put(row);
+        }
+        let request = Request::model(query, Method::Hybrid, 10);
+        let (expected, ranked) = (whole.search(&request), away.search(&request));
+        assert_eq!(
+            hits(&ranked.expect("ranks")),
+            hits(&expected.expect("ranks"))
+        );
+    }
+    let batches = batches.lock().unwrap();
+    let fetched: usize = batches.iter().sum();
+    eprintln!("{} round trips, {fetched} descriptors", batches.len());
+    assert!(batches.iter().all(|&n| n <= 64), "{batches:?}");
+    assert!(batches.len() * 8 < fetched, "{batches:?}");
+    assert!(
+        fetched * 20 < queries.len() * stored.len() * 19,
+        "fetched {fetched} descriptors for {} queries of {}",
+        queries.len(),
+        stored.len()
+    );
+}

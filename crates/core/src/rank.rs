@@ -36,12 +36,14 @@ use crate::similarity::{
 
 mod arrange;
 mod columns;
+pub mod compact;
 mod shelf;
 pub mod vectors;
 
 pub use columns::Row;
 use columns::{BlockSpan, BLOCK};
 use columns::{Columns, Entry};
+pub use shelf::Fetch;
 use shelf::Place;
 
 /// How two models are compared.
@@ -551,13 +553,25 @@ impl Index {
     /// created with the first: a directory on disk, not a memory file system, for their
     /// pages to be reclaimable.
     pub fn shelved_in(params: SimilarityParams, dir: PathBuf) -> Self {
+        Self::new_in(params, Place::new(dir))
+    }
+
+    fn new_in(params: SimilarityParams, place: Place) -> Self {
         Self {
             params,
             entries: Columns::default(),
             position: imbl::HashMap::new(),
             extractions: Vec::new(),
-            shelf: Arc::new(Place::new(dir)),
+            shelf: Arc::new(place),
         }
+    }
+
+    /// An index whose light field descriptors are kept away and fetched by `fetch` when a
+    /// ranking needs them, a batch at a time: for a ranking of a first stage's candidates
+    /// given in their [`compact`] form (#40), of which the bounds reject most. Rankings only:
+    /// [`Index::near_pairs`] reads descriptors one pair at a time and fails on it.
+    pub fn away(params: SimilarityParams, fetch: Fetch) -> Self {
+        Self::new_in(params, Place::away(fetch))
     }
 
     /// What the index keeps of `signature` ([`Index::put`]): what ranking compares, in the
@@ -565,12 +579,25 @@ impl Index {
     /// response shows (positions, statistics) stays in the store. Fails only if the shelf
     /// cannot be written.
     pub fn row(&self, id: impl Into<Arc<str>>, signature: &Signature) -> io::Result<Row> {
+        let id = id.into();
         let light_field = signature
             .lfd
             .as_ref()
-            .map(|d| self.shelf.put(d))
+            .map(|d| io::Result::Ok((self.shelf.put(&id, d)?, d.summary())))
             .transpose()?;
-        Ok(Row::new(id.into(), signature, light_field, &self.params))
+        Ok(Row::new(id, signature, light_field, &self.params))
+    }
+
+    /// [`Index::row`] from a model's [`compact`] form, for an index whose descriptors are
+    /// kept away ([`Index::away`]).
+    pub fn compact_row(&self, id: impl Into<Arc<str>>, bytes: &[u8]) -> crate::Result<Row> {
+        let id = id.into();
+        let (signature, summary) = compact::read(bytes)?;
+        let light_field = summary.map(|s| {
+            let slot = (self.shelf.away_slot(&id)).expect("an index made by Index::away");
+            (slot, s)
+        });
+        Ok(Row::new(id, &signature, light_field, &self.params))
     }
 
     /// [`Index::row`], then [`Index::put`].
@@ -749,12 +776,11 @@ impl Index {
             Ok(compared_distance(method, query.compared(), entry, params))
         };
         let admits = self.admits(scope);
-        let mut scored: Vec<(f64, usize)> = self
-            .entries
-            .par_entries()
+        let ranked: Vec<usize> = (self.entries.par_entries())
             .filter(|&e| admits(e) && e.ranks(method))
-            .map(|e| Ok((distance(e)?, e.number())))
-            .collect::<io::Result<_>>()?;
+            .map(|e| e.number())
+            .collect();
+        let mut scored = self.solve(&ranked, |e| Ok((distance(e)?, e.number())))?;
         let evaluated = scored.len();
         let top = self.smallest(&mut scored, k);
         Ok(Ranking {
@@ -1038,10 +1064,7 @@ impl Index {
                 .copied()
                 .filter(|i| !solved.iter().any(|(j, _)| j == i))
                 .collect();
-            let distances: Vec<Option<f64>> = fresh
-                .par_iter()
-                .map(|&i| exact(self.entries.get(i), f64::INFINITY))
-                .collect::<io::Result<_>>()?;
+            let distances = self.solve(&fresh, |e| exact(e, f64::INFINITY))?;
             solved.extend(fresh.into_iter().zip(distances));
             Ok(())
         };
@@ -1175,17 +1198,13 @@ impl Index {
             if live.is_empty() {
                 break;
             }
-            let solved: Vec<Option<Hit>> = live
-                .par_iter()
-                .map(|&i| {
-                    let entry = self.entries.get(i);
-                    Ok(exact(entry, kth)?.map(|distance| Hit {
-                        id: entry.id().to_string(),
-                        distance,
-                        part_scale: None,
-                    }))
-                })
-                .collect::<io::Result<_>>()?;
+            let solved = self.solve(&live, |entry| {
+                Ok(exact(entry, kth)?.map(|distance| Hit {
+                    id: entry.id().to_string(),
+                    distance,
+                    part_scale: None,
+                }))
+            })?;
             let solved: Vec<Hit> = solved.into_iter().flatten().collect();
             evaluated += solved.len();
             best.extend(solved);
@@ -1196,6 +1215,42 @@ impl Index {
             }
         }
         Ok((best, evaluated))
+    }
+
+    /// `exact` of each of `entries`, in parallel. With descriptors kept away ([`Index::away`]),
+    /// the entries whose distance needed one not yet fetched ([`shelf::is_away`]) are solved
+    /// again once those are fetched, in one round trip: a batch's bounds reject most entries
+    /// before their descriptor is read, so only the few they leave are fetched.
+    fn solve<T: Send>(
+        &self,
+        entries: &[usize],
+        exact: impl Fn(Entry) -> io::Result<T> + Sync,
+    ) -> io::Result<Vec<T>> {
+        let first: Vec<io::Result<T>> = entries
+            .par_iter()
+            .map(|&i| exact(self.entries.get(i)))
+            .collect();
+        let away: Vec<usize> = (entries.iter().zip(&first))
+            .filter(|(_, r)| r.as_ref().is_err_and(shelf::is_away))
+            .map(|(&i, _)| i)
+            .collect();
+        if away.is_empty() {
+            return first.into_iter().collect();
+        }
+        self.shelf
+            .fetch(away.iter().map(|&i| self.entries.get(i).id()))?;
+        let again: Vec<T> = away
+            .par_iter()
+            .map(|&i| exact(self.entries.get(i)))
+            .collect::<io::Result<_>>()?;
+        let mut again = again.into_iter();
+        first
+            .into_iter()
+            .map(|r| match r {
+                Err(e) if shelf::is_away(&e) => Ok(again.next().expect("one for each")),
+                r => r,
+            })
+            .collect()
     }
 
     /// Moves the `k` smallest of `scored` (by score, ties by id) to its front, sorted, and

@@ -214,20 +214,22 @@ pub struct Row {
 }
 
 impl Row {
-    /// `light_field` is `signature.lfd` shelved.
+    /// `light_field` is the model's light field descriptor kept (`signature.lfd` shelved, or
+    /// kept away when the signature comes without it) and its summary.
     pub fn new(
         id: Arc<str>,
         signature: &Signature,
-        light_field: Option<Arc<Slot>>,
+        light_field: Option<(Arc<Slot>, LfdSummary)>,
         params: &SimilarityParams,
     ) -> Self {
         let features = Features::of(&signature.features);
+        let (light_field, lfd) = light_field.unzip();
         Self {
             centroid: features.centroid(),
             summary: Summary::of(&features, params),
             features,
-            sketch: signature.lfd.as_ref().map(|d| d.sketch()),
-            lfd: signature.lfd.as_ref().map(|d| d.summary()),
+            sketch: lfd.as_ref().map(LfdSummary::sketch),
+            lfd,
             light_field,
             d2: signature.d2.clone(),
             geodesic: signature
@@ -374,10 +376,10 @@ impl<'a> Entry<'a> {
 
     /// The light field descriptor, for the LFD's exact distance: read from the shelf.
     pub fn light_field(self) -> io::Result<Option<LightFieldDescriptor>> {
-        self.chunk.light_fields[self.slot]
-            .as_ref()
-            .map(|slot| slot.get())
-            .transpose()
+        match &self.chunk.light_fields[self.slot] {
+            Some(slot) => slot.get(),
+            None => Ok(None),
+        }
     }
 
     /// What every method compares, for a distance without bounds, with the light field

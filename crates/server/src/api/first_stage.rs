@@ -2,7 +2,9 @@
 //! pgvector's HNSW index finds about the `k × first_stage_oversampling` models nearest the
 //! query by their vectors ([`salient_core::rank::vectors`], one per model, pooled: as good as
 //! one per light field in `benches/first_stage.rs`, at a tenth of the rows), with their
-//! signatures in the same round trip, and this replica ranks those by their exact distance.
+//! compact forms ([`salient_core::rank::compact`]) in the same round trip, and this replica
+//! ranks those by their exact distance: the bounds first, then the distances of the few they
+//! leave, whose light field descriptors come in batches from their stored signatures.
 //! Approximate, and said so in the response: a model the first stage misses is not ranked.
 
 use std::sync::Arc;
@@ -12,24 +14,31 @@ use rayon::prelude::*;
 use super::config::{Config, FirstStageKind};
 use super::error::AppError;
 use super::App;
-use crate::store::{Candidate, PostgresStore, StoreError, VectorSpec};
+use crate::store::{Candidate, Kept, PostgresStore, Store, StoreError, VectorSpec};
 use salient_core::params::{Params, SimilarityParams};
 use salient_core::rank::vectors::{self, Layout};
-use salient_core::rank::{Hit, Index, Method, Request, Row, Search};
+use salient_core::rank::{compact, Fetch, Hit, Index, Method, Request, Row, Search};
 use salient_core::signature::Signature;
+
+/// What the first stage keeps changed after its first release (the compact form came):
+/// rows made before carry another key and are made again.
+const FORM: u32 = 2;
 
 /// How the store makes the vectors: the pooled rows under the ranking parameters `params`
 /// name, which a change of the weights they depend on (the hybrid's and `W`) makes again.
 pub fn spec(params: &Params) -> VectorSpec {
     let similarity = params.similarity.clone();
-    let key = serde_json::to_string(&(similarity.ecc_weight, &similarity.hybrid))
+    let key = serde_json::to_string(&(similarity.ecc_weight, &similarity.hybrid, FORM))
         .expect("parameters serialise");
     VectorSpec {
         dimensions: vectors::dimensions(params),
         key,
         vector: Arc::new(move |bytes| {
             let signature = Signature::from_bytes(bytes).ok()?;
-            vector(&signature, &similarity)
+            Some(Kept {
+                vector: vector(&signature, &similarity)?,
+                compact: compact::of(&signature),
+            })
         }),
     }
 }
@@ -87,21 +96,24 @@ pub async fn rank(
         })
         .await?;
     let first_stage_ms = clock.elapsed().as_secs_f64() * 1e3;
-    let dir = config.shelf_dir.clone().unwrap_or_else(std::env::temp_dir);
+    let fetch = light_fields(app.store.clone());
     let turn = app.rankers.turn().await;
     tokio::task::spawn_blocking(move || {
         turn.install(|| {
             // The candidates ranked as the in-memory index ranks all models: bounds first,
-            // the exact distance of the few they cannot reject.
-            let mut index = Index::shelved_in(params, dir);
+            // the exact distance of the few they cannot reject. A compact form this release
+            // cannot read is a candidate left out, as a model without a vector is.
+            let mut index = Index::away(params, fetch);
             let rows: Vec<Row> = candidates
                 .par_iter()
-                .filter_map(|Candidate { id, signature }| {
-                    let signature = Signature::from_bytes(signature).ok()?;
-                    Some(index.row(id.as_str(), &signature))
+                .filter_map(|Candidate { id, compact }| {
+                    let row = index.compact_row(id.as_str(), compact);
+                    if row.is_err() {
+                        tracing::warn!(%id, "a first-stage candidate's compact form is unreadable");
+                    }
+                    row.ok()
                 })
-                .collect::<std::io::Result<_>>()
-                .map_err(AppError::index)?;
+                .collect();
             for row in rows {
                 index.put(row);
             }
@@ -118,4 +130,21 @@ pub async fn rank(
     })
     .await
     .map_err(|e| AppError::Internal(format!("ranking failed: {e}")))?
+}
+
+/// The second round of a ranking: the light field descriptors of the candidates whose bounds
+/// do not reject them, from their stored signatures.
+fn light_fields(store: Arc<dyn Store>) -> Fetch {
+    Arc::new(move |ids: &[Arc<str>]| {
+        let ids: Vec<&str> = ids.iter().map(|id| &**id).collect();
+        let stage = store.first_stage().expect("checked at start");
+        let signatures = stage.signatures(&ids).map_err(std::io::Error::other)?;
+        Ok(signatures
+            .into_iter()
+            .filter_map(|(id, bytes)| {
+                let lfd = Signature::from_bytes(&bytes).ok()?.lfd?;
+                Some((Arc::from(id.as_str()), lfd))
+            })
+            .collect())
+    })
 }

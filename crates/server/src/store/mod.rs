@@ -156,9 +156,10 @@ pub trait Shared: Send + Sync {
     fn try_lock(&self, name: &str) -> StoreResult<Option<Box<dyn Send>>>;
 }
 
-/// How a store makes the vectors of a first stage kept in the database (#40): one vector of
-/// `dimensions` per model from its stored signature (`None`: the model has none, as a stale
-/// signature), made for the ranking parameters `key` names.
+/// How a store makes what a first stage kept in the database holds of each model (#40): one
+/// vector of `dimensions` and the model's compact form ([`Kept`]) from its stored signature
+/// (`None`: the model has none, as a stale signature), made for the ranking parameters `key`
+/// names.
 #[derive(Clone)]
 pub struct VectorSpec {
     pub dimensions: usize,
@@ -166,20 +167,28 @@ pub struct VectorSpec {
     pub vector: VectorOf,
 }
 
-/// A model's first-stage vector from its stored signature's bytes ([`VectorSpec`]).
-pub type VectorOf = std::sync::Arc<dyn Fn(&[u8]) -> Option<Vec<f32>> + Send + Sync>;
+/// What a first stage keeps of a model: its vector, and what the exact ranking of the
+/// candidates reads of it but the light field descriptor
+/// ([`salient_core::rank::compact`]), returned with it.
+pub struct Kept {
+    pub vector: Vec<f32>,
+    pub compact: Vec<u8>,
+}
 
-/// A model a first stage found, with its stored signature for the exact ranking.
+/// [`Kept`] from a stored signature's bytes ([`VectorSpec`]).
+pub type VectorOf = std::sync::Arc<dyn Fn(&[u8]) -> Option<Kept> + Send + Sync>;
+
+/// A model a first stage found, in its compact form.
 pub struct Candidate {
     pub id: ModelId,
-    pub signature: Vec<u8>,
+    pub compact: Vec<u8>,
 }
 
 /// A first stage of ranking kept in the store (pgvector's HNSW index, #40): the models
 /// nearest a vector by L1 distance, approximately.
 pub trait FirstStage: Send + Sync {
     /// About the `count` models nearest `vector` that have `tag` (any model when `None`),
-    /// `without` left out, each with its signature, in one round trip.
+    /// `without` left out, each in its compact form, in one round trip.
     fn nearest(
         &self,
         vector: &[f32],
@@ -187,6 +196,11 @@ pub trait FirstStage: Send + Sync {
         tag: Option<&str>,
         without: Option<&str>,
     ) -> StoreResult<Vec<Candidate>>;
+
+    /// The stored signatures of the models `ids` that exist, in one round trip: the second
+    /// round of a ranking, for the light field descriptors of the candidates the compact
+    /// forms' bounds leave.
+    fn signatures(&self, ids: &[&str]) -> StoreResult<Vec<(ModelId, Vec<u8>)>>;
 }
 
 /// The storage operations the service uses.

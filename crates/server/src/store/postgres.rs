@@ -1004,9 +1004,9 @@ impl Shared for PostgresStore {
     }
 }
 
-/// A model's first-stage vector as a write keeps it: the key of the parameters it was made
-/// for, and the vector (`None` for a signature without one).
-type KeptVector = Arc<(String, Option<pgvector::Vector>)>;
+/// A model's first-stage row as a write keeps it: the key of the parameters it was made for,
+/// and its vector and compact form (`None` for a signature without them).
+type KeptVector = Arc<(String, Option<(pgvector::Vector, Vec<u8>)>)>;
 
 /// The name of the lock held while a replica makes the vectors the first stage lacks.
 const FILLING: &str = "first stage vectors";
@@ -1038,8 +1038,8 @@ impl PostgresStore {
     /// The vector `signature` is kept with, when the store keeps a first stage.
     fn vector_of(&self, signature: &[u8]) -> Option<KeptVector> {
         let spec = self.vectors.as_ref()?;
-        let vector = (spec.vector)(signature).map(pgvector::Vector::from);
-        Some(Arc::new((spec.key.clone(), vector)))
+        let kept = (spec.vector)(signature).map(|k| (pgvector::Vector::from(k.vector), k.compact));
+        Some(Arc::new((spec.key.clone(), kept)))
     }
 
     /// Makes the vectors of the models without one of today's key, a page at a time.
@@ -1132,15 +1132,18 @@ async fn prepare_vectors(pool: &Pool, dimensions: usize) -> StoreResult<()> {
                 .await
                 .map_err(backend)?;
         }
-        // One row per model (`v` NULL for a model without a vector); its tags beside it, for
-        // a filtered scan of the index to test without a join.
+        // One row per model (`v` and `compact` NULL for a model without them); its tags
+        // beside it, for a filtered scan of the index to test without a join. `compact` came
+        // after the first release of the table; the rows made before it are made again (their
+        // key is not today's: `spec`).
         client
             .batch_execute(&format!(
                 "CREATE TABLE IF NOT EXISTS model_vectors ( \
                    id text COLLATE \"C\" PRIMARY KEY REFERENCES models ON DELETE CASCADE, \
                    made_for text NOT NULL, \
                    tags text[] NOT NULL, \
-                   v vector({dimensions}))"
+                   v vector({dimensions})); \
+                 ALTER TABLE model_vectors ADD COLUMN IF NOT EXISTS compact bytea"
             ))
             .await
             .map_err(backend)
@@ -1155,8 +1158,10 @@ async fn prepare_vectors(pool: &Pool, dimensions: usize) -> StoreResult<()> {
 
 /// Builds the HNSW index of the vectors for the L1 distance if it is missing: a graph built
 /// in memory when it fits in `maintenance_work_mem` (~1 KB a model), ten times faster than
-/// one that does not. Denser than pgvector's defaults (m 16, ef_construction 64), which
-/// found 0.90 of the exact top 10 at 100 000 models whose near copies crowd together.
+/// one that does not. Denser than pgvector's defaults (m 16, ef_construction 64), whose
+/// graph keeps at most 0.95 of the exact top 10 within reach at 100 000 models whose near
+/// copies crowd together, however far the scan goes; m 32 and ef_construction 256 reach
+/// 0.98 at 500 candidates (`benches/first_stage.rs`'s dump, 43 s to build on two cores).
 async fn index_vectors(pool: &Pool) -> StoreResult<()> {
     let client = pool.get().await.map_err(pool_error)?;
     let clock = std::time::Instant::now();
@@ -1164,7 +1169,7 @@ async fn index_vectors(pool: &Pool) -> StoreResult<()> {
         .batch_execute(
             "SET maintenance_work_mem = '1GB'; \
              CREATE INDEX IF NOT EXISTS model_vectors_l1 ON model_vectors \
-               USING hnsw (v vector_l1_ops) WITH (m = 24, ef_construction = 200); \
+               USING hnsw (v vector_l1_ops) WITH (m = 32, ef_construction = 256); \
              RESET maintenance_work_mem",
         )
         .await
@@ -1182,12 +1187,13 @@ async fn put_vector(
     record: &ModelRecord,
     kept: &KeptVector,
 ) -> StoreResult<()> {
-    let (key, vector) = &**kept;
+    let (key, kept) = &**kept;
+    let (vector, compact) = kept.as_ref().map(|(v, c)| (v, c)).unzip();
     tx.execute(
-        "INSERT INTO model_vectors (id, made_for, tags, v) VALUES ($1, $2, $3, $4) \
+        "INSERT INTO model_vectors (id, made_for, tags, v, compact) VALUES ($1, $2, $3, $4, $5) \
          ON CONFLICT (id) DO UPDATE SET made_for = EXCLUDED.made_for, tags = EXCLUDED.tags, \
-         v = EXCLUDED.v",
-        &[&record.id.as_str(), key, &record.tags, vector],
+         v = EXCLUDED.v, compact = EXCLUDED.compact",
+        &[&record.id.as_str(), key, &record.tags, &vector, &compact],
     )
     .await
     .map_err(backend)?;
@@ -1218,27 +1224,45 @@ impl FirstStage for PostgresStore {
                 .map_err(backend)?;
                 let rows = tx
                     .query(
-                        "SELECT n.id, m.signature FROM ( \
-                           SELECT id, v <+> $1 AS d FROM model_vectors \
-                           WHERE ($2::text IS NULL OR tags @> ARRAY[$2::text]) \
-                             AND ($3::text IS NULL OR id <> $3::text) \
-                           ORDER BY v <+> $1 LIMIT $4) n \
-                         JOIN models m USING (id) ORDER BY n.d, n.id",
+                        "SELECT id, compact FROM model_vectors \
+                         WHERE ($2::text IS NULL OR tags @> ARRAY[$2::text]) \
+                           AND ($3::text IS NULL OR id <> $3::text) \
+                         ORDER BY v <+> $1 LIMIT $4",
                         &[&*vector, &tag, &without, &count],
                     )
                     .await
                     .map_err(backend)?;
+                // A model without a vector has no compact form either; a scan past the
+                // index's rows may return it last.
                 let candidates = rows
                     .iter()
-                    .map(|row| {
+                    .filter_map(|row| Some((row.get(0), row.get::<_, Option<Vec<u8>>>(1)?)))
+                    .map(|(id, compact)| {
                         Ok(Candidate {
-                            id: parse_id(row.get(0))?,
-                            signature: row.get(1),
+                            id: parse_id(id)?,
+                            compact,
                         })
                     })
                     .collect::<StoreResult<_>>()?;
                 Ok((candidates, None))
             })
+        })
+    }
+
+    fn signatures(&self, ids: &[&str]) -> StoreResult<Vec<(ModelId, Vec<u8>)>> {
+        let ids: Vec<String> = ids.iter().map(|id| id.to_string()).collect();
+        self.run(|pool| async move {
+            let client = pool.get().await.map_err(pool_error)?;
+            let rows = client
+                .query(
+                    "SELECT id, signature FROM models WHERE id = ANY($1)",
+                    &[&ids],
+                )
+                .await
+                .map_err(backend)?;
+            rows.iter()
+                .map(|row| Ok((parse_id(row.get(0))?, row.get(1))))
+                .collect()
         })
     }
 }

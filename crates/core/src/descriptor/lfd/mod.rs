@@ -207,7 +207,7 @@ impl LightFieldDescriptor {
 
     /// The [`LfdSketch`] of this descriptor.
     pub fn sketch(&self) -> LfdSketch {
-        LfdSketch::of(&self.summary())
+        self.summary().sketch()
     }
 
     /// The images of light field `field`.
@@ -524,6 +524,32 @@ impl LfdSummary {
         self.0
             .iter()
             .map(|sums| std::array::from_fn(|c| (f64::from(sums[c]) / MAX_DISTANCE) as f32))
+    }
+
+    /// The [`LfdSketch`] of the descriptor summarised.
+    pub fn sketch(&self) -> LfdSketch {
+        LfdSketch::of(self)
+    }
+
+    /// The sums, light field by light field, without padding: a compact form to keep apart
+    /// from the descriptor ([`crate::rank::Compact`]).
+    pub fn sums(&self) -> Vec<u16> {
+        self.0
+            .iter()
+            .flat_map(|s| s[..COEFFICIENTS].to_vec())
+            .collect()
+    }
+
+    /// The inverse of [`LfdSummary::sums`]; `None` for sums of another length.
+    pub fn from_sums(sums: &[u16]) -> Option<Self> {
+        if sums.len() != LIGHT_FIELDS * COEFFICIENTS {
+            return None;
+        }
+        let mut padded: Sums = [[0; PADDED]; LIGHT_FIELDS];
+        for (field, sums) in padded.iter_mut().zip(sums.chunks_exact(COEFFICIENTS)) {
+            field[..COEFFICIENTS].copy_from_slice(sums);
+        }
+        Some(Self(padded))
     }
 
     /// Never above the distance of the descriptors summarised.
