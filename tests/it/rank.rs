@@ -630,7 +630,7 @@ fn first_stage_rows_bound_the_hybrid_distance() {
 
 /// An index of the first stage's candidates in their compact form (#40), its light field
 /// descriptors fetched when a ranking needs them, ranks as an index of the whole signatures,
-/// and fetches the descriptors a batch at a time, only for the few its bounds leave.
+/// in at most three round trips a ranking, leaving out those its bounds reject.
 #[test]
 fn compact_rows_with_descriptors_away_rank_as_whole_signatures() {
     use salient_core::descriptor::LightFieldDescriptor;
@@ -667,6 +667,13 @@ fn compact_rows_with_descriptors_away_rank_as_whole_signatures() {
                 .collect())
         })
     };
+    let (_, first) = &stored[0];
+    let (read, summary) = compact::read(&compact::of(first)).expect("reads");
+    assert_eq!(summary, first.lfd.as_ref().map(|d| d.summary()));
+    assert_eq!(
+        (read.lfd, &read.features, &read.d2),
+        (None, &first.features, &first.d2)
+    );
     for (_, query) in &queries {
         let mut away = Index::away(params.clone(), fetch.clone());
         for (id, s) in &stored {
@@ -684,9 +691,8 @@ fn compact_rows_with_descriptors_away_rank_as_whole_signatures() {
     }
     let batches = batches.lock().unwrap();
     let fetched: usize = batches.iter().sum();
-    eprintln!("{} round trips, {fetched} descriptors", batches.len());
-    assert!(batches.iter().all(|&n| n <= 64), "{batches:?}");
-    assert!(batches.len() * 8 < fetched, "{batches:?}");
+    // The first look's seeds, the first pass's seeds, then every candidate the visit may read.
+    assert!(batches.len() <= 3 * queries.len(), "{batches:?}");
     assert!(
         fetched * 20 < queries.len() * stored.len() * 19,
         "fetched {fetched} descriptors for {} queries of {}",

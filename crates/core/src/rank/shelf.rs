@@ -94,6 +94,10 @@ impl Place {
         }
     }
 
+    pub fn is_away(&self) -> bool {
+        matches!(self, Place::Away(_))
+    }
+
     /// Fetches the descriptors of `ids` kept away in one round trip; nothing on a shelf.
     pub fn fetch<'a>(&self, ids: impl Iterator<Item = &'a Arc<str>>) -> io::Result<()> {
         match self {
