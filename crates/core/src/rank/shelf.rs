@@ -11,8 +11,8 @@
 //! snapshots may still be ranking with it), and reused by the next descriptor.
 //!
 //! An index of a database's first-stage candidates (#40) keeps its descriptors *away*
-//! instead: in the database, fetched for the few candidates its bounds leave, a batch of them
-//! per round trip ([`Place::fetch`]), and held for the rest of the ranking.
+//! instead: in the database, fetched for the candidates its bounds leave, many per round trip
+//! ([`Place::fetch`]), and held for the rest of the ranking.
 
 use std::collections::HashMap;
 use std::fs::File;
