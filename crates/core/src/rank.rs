@@ -1221,7 +1221,7 @@ impl Index {
     /// With descriptors kept away ([`Index::away`]), fetches those of every entry a visit may
     /// read (`order`: each within the k-th distance by its bounds) in one round trip, before
     /// the visit: a round trip per batch of the visit cost more, on a loaded database, than
-    /// the descriptors it then did not fetch (the load bench: 3 to 8 trips a ranking).
+    /// the descriptors it then did not fetch (the load bench: 2 to 8 trips a ranking).
     fn fetch_ahead(&self, order: &[(f64, usize)]) -> io::Result<()> {
         if !self.shelf.is_away() {
             return Ok(());

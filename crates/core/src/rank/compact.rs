@@ -1,9 +1,11 @@
 //! A model as an index ranks it, without its light field descriptor: what a first stage in a
 //! database keeps beside each model's vector and returns for each of its candidates (#40).
 //!
-//! The descriptor is two thirds of a signature (4.5 KB of ~7), yet a ranking of a thousand
-//! candidates reads it for the ~100 its bounds leave: the summary (900 bytes) gives those
-//! bounds, and the descriptors come in a second round trip ([`super::Index::away`]).
+//! The descriptor is most of a signature (4.5 KB packed; a real signature is ~5.2 KB
+//! compressed, its compact form ~2.2 KB), yet a ranking of a thousand candidates reads it for
+//! the few its bounds leave (34–296 at 10 000 models in the load bench): the summary (900
+//! bytes) gives those bounds, and the descriptors come in a second round trip
+//! ([`super::Index::away`]).
 
 use serde::{Deserialize, Serialize};
 

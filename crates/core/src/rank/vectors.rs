@@ -4,8 +4,9 @@
 //!
 //! Each part of the hybrid's first bound ([`super::fuse`] of its parts' bounds) is an L1
 //! distance of a few numbers, once scaled by the part's weight over its scale: the geodesic
-//! distance is the L1 distance of cumulative sums ([`Cumulative`]); the light field bound the
-//! least over pairs of light fields of the L1 distance of their view sums
+//! distance is the L1 distance of cumulative sums
+//! ([`crate::descriptor::geodesic::Cumulative`]); the light field bound the least over pairs
+//! of light fields of the L1 distance of their view sums
 //! ([`crate::descriptor::lfd::LfdSummary::lower_bound`]); the global D2 distance is half an L1. The
 //! ECC part's centroid bound ([`crate::similarity::centroid_bound`]) is an L2 distance of mean
 //! ECC values, of which the L1 distance over the waves' count is a lower bound (`‖x‖₂ ≥

@@ -532,7 +532,7 @@ impl LfdSummary {
     }
 
     /// The sums, light field by light field, without padding: a compact form to keep apart
-    /// from the descriptor ([`crate::rank::Compact`]).
+    /// from the descriptor ([`crate::rank::compact`]).
     pub fn sums(&self) -> Vec<u16> {
         self.0
             .iter()
