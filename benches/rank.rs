@@ -8,12 +8,13 @@ mod corpus;
 #[path = "../tests/it/synthetic.rs"]
 mod synthetic;
 
+use std::sync::Arc;
 use std::time::Instant;
 
 use rand::SeedableRng;
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
-use salient_core::rank::{Index, Method, Request, Scope, Search};
+use salient_core::rank::{compact, Fetch, Index, Method, Request, Scope, Search};
 use salient_core::similarity::compare;
 use salient_core::{Params, Signature};
 
@@ -114,6 +115,43 @@ fn percentile(values: &mut [f64], p: f64) -> f64 {
     values[((values.len() - 1) as f64 * p).round() as usize]
 }
 
+/// What a ranking with its first stage in the database (#40) pays a candidate for its row
+/// from its compact form, against decoding its whole stored signature, on one thread.
+fn candidate_rows(models: &[(usize, Signature)]) {
+    let rounds = 20;
+    let stored: Vec<Vec<u8>> = models.iter().map(|(_, s)| s.to_bytes()).collect();
+    let compacts: Vec<Vec<u8>> = models.iter().map(|(_, s)| compact::of(s)).collect();
+    let none: Fetch = Arc::new(|_: &[Arc<str>]| Ok(Vec::new()));
+    let away = Index::away(Params::default().similarity, none);
+    let clock = Instant::now();
+    for (i, bytes) in compacts
+        .iter()
+        .cycle()
+        .take(rounds * compacts.len())
+        .enumerate()
+    {
+        std::hint::black_box(away.compact_row(format!("m{i}"), bytes).expect("readable"));
+    }
+    let compact_us = clock.elapsed().as_secs_f64() * 1e6 / (rounds * compacts.len()) as f64;
+    let clock = Instant::now();
+    for (i, bytes) in stored
+        .iter()
+        .cycle()
+        .take(rounds * stored.len())
+        .enumerate()
+    {
+        std::hint::black_box((i, Signature::from_bytes(bytes).expect("readable")));
+    }
+    let whole_us = clock.elapsed().as_secs_f64() * 1e6 / (rounds * stored.len()) as f64;
+    let mean = |forms: &[Vec<u8>]| forms.iter().map(Vec::len).sum::<usize>() / forms.len();
+    eprintln!(
+        "a candidate's row: from its compact form {compact_us:.1} µs ({} bytes); decoding \
+         its stored signature {whole_us:.1} µs ({} bytes)",
+        mean(&compacts),
+        mean(&stored)
+    );
+}
+
 /// Ranking cost on **real signatures**: the load bench's base store (both shared collections
 /// less every fifth model, extracted once by `cargo bench --bench load`) copied with every
 /// descriptor perturbed into `SALIENT_RANK_MODELS` entries (100 000), ranked in process on one
@@ -141,6 +179,7 @@ fn real_signatures(_: &mut Criterion) {
         .into_iter()
         .enumerate()
         .partition(|(i, _)| i % 5 == 4);
+    candidate_rows(&sources);
     let before = resident_mib();
     let clock = Instant::now();
     let mut index = Index::new(Params::default().similarity);

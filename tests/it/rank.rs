@@ -667,13 +667,17 @@ fn compact_rows_with_descriptors_away_rank_as_whole_signatures() {
                 .collect())
         })
     };
-    let (_, first) = &stored[0];
-    let (read, summary) = compact::read(&compact::of(first)).expect("reads");
-    assert_eq!(summary, first.lfd.as_ref().map(|d| d.summary()));
-    assert_eq!(
-        (read.lfd, &read.features, &read.d2),
-        (None, &first.features, &first.d2)
+    let (first_id, first) = &stored[0];
+    let form = compact::of(first);
+    assert!(
+        form.len() * 2 < first.to_bytes().len(),
+        "{} bytes",
+        form.len()
     );
+    let away = Index::away(params.clone(), fetch.clone());
+    for broken in [&form[..form.len() / 2], b"not a compact form"] {
+        assert!(away.compact_row(first_id.as_str(), broken).is_err());
+    }
     for (_, query) in &queries {
         let mut away = Index::away(params.clone(), fetch.clone());
         for (id, s) in &stored {
@@ -682,6 +686,8 @@ fn compact_rows_with_descriptors_away_rank_as_whole_signatures() {
                 .expect("reads");
             away.put(row);
         }
+        // The form leaves the extraction parameters out: staleness is not known.
+        assert_eq!(away.stale(first_id, &Params::default()), None);
         let request = Request::model(query, Method::Hybrid, 10);
         let (expected, ranked) = (whole.search(&request), away.search(&request));
         assert_eq!(

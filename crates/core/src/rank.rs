@@ -592,12 +592,10 @@ impl Index {
     /// kept away ([`Index::away`]).
     pub fn compact_row(&self, id: impl Into<Arc<str>>, bytes: &[u8]) -> crate::Result<Row> {
         let id = id.into();
-        let (signature, summary) = compact::read(bytes)?;
-        let light_field = summary.map(|s| {
-            let slot = (self.shelf.away_slot(&id)).expect("an index made by Index::away");
-            (slot, s)
-        });
-        Ok(Row::new(id, &signature, light_field, &self.params))
+        let compact = compact::read(bytes)?;
+        let light_field = (compact.lfd.is_some())
+            .then(|| (self.shelf.away_slot(&id)).expect("an index made by Index::away"));
+        Ok(Row::compact(id, compact, light_field, &self.params))
     }
 
     /// [`Index::row`], then [`Index::put`].
@@ -610,9 +608,11 @@ impl Index {
     /// Adds an entry made by this index's [`Index::row`] (or a copy's), replacing one with
     /// the same id.
     pub fn put(&mut self, mut row: Row) {
-        match self.extractions.iter().find(|p| **p == *row.extraction()) {
-            Some(p) => row.share(p.clone()),
-            None => self.extractions.push(row.extraction().clone()),
+        if let Some(extraction) = row.extraction() {
+            match self.extractions.iter().find(|p| *p == extraction) {
+                Some(p) => row.share(p.clone()),
+                None => self.extractions.push(extraction.clone()),
+            }
         }
         match self.position.get(row.id()) {
             Some(&i) => self.entries.set(i, row),
@@ -650,10 +650,11 @@ impl Index {
     }
 
     /// Whether the entry `id` is stale under `current` ([`Signature::staleness`]); `None`
-    /// when there is no such entry.
+    /// when there is no such entry, or it does not know its parameters (made by
+    /// [`Index::compact_row`]).
     pub fn stale(&self, id: &str, current: &Params) -> Option<bool> {
         let &i = self.position.get(id)?;
-        Some(self.entries.get(i).staleness(current).is_some())
+        Some(self.entries.get(i).staleness(current)?.is_some())
     }
 
     /// The parameters the index compares with.

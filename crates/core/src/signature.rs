@@ -243,7 +243,7 @@ pub(crate) fn quantise(histogram: &[f32]) -> Vec<u16> {
         .collect()
 }
 
-fn dequantise(histogram: &[u16]) -> Vec<f32> {
+pub(crate) fn dequantise(histogram: &[u16]) -> Vec<f32> {
     histogram
         .iter()
         .map(|&h| (h as f64 / BIN_SCALE) as f32)

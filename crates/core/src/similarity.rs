@@ -47,6 +47,25 @@ impl Features {
         }
     }
 
+    /// The features from their rows as [`Features::rows`] gives them; `None` when an array
+    /// is not `count` rows of one length.
+    pub(crate) fn from_rows(count: usize, ecc: Vec<f32>, d2: Vec<u16>) -> Option<Self> {
+        let rows = |len: usize| match count {
+            0 => len == 0,
+            n => len.is_multiple_of(n),
+        };
+        (rows(ecc.len()) && rows(d2.len())).then(|| Self {
+            count,
+            ecc: ecc.into(),
+            d2: d2.into(),
+        })
+    }
+
+    /// The count, the ECC values and the region D2 bins, row after row.
+    pub(crate) fn rows(&self) -> (usize, &[f32], &[u16]) {
+        (self.count, &self.ecc, &self.d2)
+    }
+
     pub fn len(&self) -> usize {
         self.count
     }

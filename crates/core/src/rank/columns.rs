@@ -19,6 +19,7 @@ use crate::params::{Params, SimilarityParams};
 use crate::signature::{Signature, Staleness};
 use crate::similarity::{Centroid, Features, Summary};
 
+use super::compact::Compact;
 use super::shelf::Slot;
 use super::{Compared, Held, Method};
 
@@ -185,7 +186,7 @@ impl Rows {
 #[derive(Debug, Clone, Default)]
 struct Chunk {
     ids: Vec<Arc<str>>,
-    extractions: Vec<Arc<Params>>,
+    extractions: Vec<Option<Arc<Params>>>,
     features: Vec<Features>,
     light_fields: Vec<Option<Arc<Slot>>>,
     summaries: Vec<Summary>,
@@ -202,7 +203,8 @@ struct Chunk {
 /// What the index keeps of one model, computed once when it is inserted.
 pub struct Row {
     id: Arc<str>,
-    extraction: Arc<Params>,
+    /// `None` for a row made from a compact form, which leaves the parameters out.
+    extraction: Option<Arc<Params>>,
     features: Features,
     light_field: Option<Arc<Slot>>,
     d2: Vec<f32>,
@@ -222,8 +224,32 @@ impl Row {
         light_field: Option<(Arc<Slot>, LfdSummary)>,
         params: &SimilarityParams,
     ) -> Self {
-        let features = Features::of(&signature.features);
-        let (light_field, lfd) = light_field.unzip();
+        let (slot, lfd) = light_field.unzip();
+        let compact = Compact {
+            features: Features::of(&signature.features),
+            d2: signature.d2.clone(),
+            geodesic: (signature.geodesic.as_ref()).map(GeodesicDescriptor::cumulative),
+            lfd,
+        };
+        let mut row = Self::compact(id, compact, slot, params);
+        row.extraction = Some(Arc::new(signature.params.clone()));
+        row
+    }
+
+    /// The row of a model's [`compact`](super::compact) form, its descriptor kept as
+    /// `light_field` says.
+    pub(crate) fn compact(
+        id: Arc<str>,
+        compact: Compact,
+        light_field: Option<Arc<Slot>>,
+        params: &SimilarityParams,
+    ) -> Self {
+        let Compact {
+            features,
+            d2,
+            geodesic,
+            lfd,
+        } = compact;
         Self {
             centroid: features.centroid(),
             summary: Summary::of(&features, params),
@@ -231,25 +257,22 @@ impl Row {
             sketch: lfd.as_ref().map(LfdSummary::sketch),
             lfd,
             light_field,
-            d2: signature.d2.clone(),
-            geodesic: signature
-                .geodesic
-                .as_ref()
-                .map(GeodesicDescriptor::cumulative),
+            d2,
+            geodesic,
             id,
-            extraction: Arc::new(signature.params.clone()),
+            extraction: None,
         }
     }
 
-    /// The parameters it was extracted with, to share with other rows.
-    pub fn extraction(&self) -> &Arc<Params> {
-        &self.extraction
+    /// The parameters it was extracted with, to share with other rows; `None` when not known.
+    pub fn extraction(&self) -> Option<&Arc<Params>> {
+        self.extraction.as_ref()
     }
 
     /// Shares `extraction`, equal to this row's.
     pub fn share(&mut self, extraction: Arc<Params>) {
-        debug_assert!(*extraction == *self.extraction);
-        self.extraction = extraction;
+        debug_assert!(self.extraction.as_deref() == Some(&*extraction));
+        self.extraction = Some(extraction);
     }
 
     pub fn id(&self) -> &Arc<str> {
@@ -396,14 +419,16 @@ impl<'a> Entry<'a> {
         }
     }
 
-    /// [`Signature::staleness`] of the entry's signature.
-    pub fn staleness(self, current: &Params) -> Option<Staleness> {
+    /// [`Signature::staleness`] of the entry's signature; `None` when the entry does not know
+    /// its parameters (made from a compact form).
+    pub fn staleness(self, current: &Params) -> Option<Option<Staleness>> {
         let holds = self.held();
-        Staleness::of(
-            &self.chunk.extractions[self.slot],
+        let extraction = self.chunk.extractions[self.slot].as_ref()?;
+        Some(Staleness::of(
+            extraction,
             holds.lfd && holds.geodesic,
             current,
-        )
+        ))
     }
 
     /// The ECC bound's side ([`Summary`]).

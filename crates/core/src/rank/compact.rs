@@ -2,50 +2,89 @@
 //! database keeps beside each model's vector and returns for each of its candidates (#40).
 //!
 //! The descriptor is most of a signature (4.5 KB packed; a real signature is ~5.2 KB
-//! compressed, its compact form ~2.2 KB), yet a ranking of a thousand candidates reads it for
-//! the few its bounds leave (34–296 at 10 000 models in the load bench): the summary (900
-//! bytes) gives those bounds, and the descriptors come in a second round trip
-//! ([`super::Index::away`]).
+//! compressed), yet a ranking of a thousand candidates reads it for the few its bounds leave
+//! (34–296 at 10 000 models in the load bench): the summary (900 bytes) gives those bounds, and
+//! the descriptors come in a second round trip ([`super::Index::away`]).
+//!
+//! The form holds the compared parts in the form the index compares them ([`Features`]'
+//! rows, the quantised histograms), uncompressed: a ranking reads a thousand of these, and
+//! reading a signature's compressed sections, its parameters (JSON) and features one
+//! allocation each cost ~18 µs a candidate against ~2 µs for this (`benches/rank.rs`). It
+//! leaves out the extraction parameters, so a row made from it cannot say whether its
+//! model is stale ([`super::Index::stale`] answers `None`).
 
 use serde::{Deserialize, Serialize};
 
+use crate::descriptor::geodesic::Cumulative;
 use crate::descriptor::lfd::LfdSummary;
-use crate::signature::{Signature, SignatureStats};
+use crate::descriptor::GeodesicDescriptor;
+use crate::signature::{dequantise, quantise, Signature};
+use crate::similarity::Features;
 use crate::{Error, Result};
 
-/// The stored form: the signature without its descriptor or statistics, and the
-/// descriptor's [`LfdSummary`] (its sums, unpadded).
+/// The stored form (postcard).
 #[derive(Serialize, Deserialize)]
 struct Stored {
-    #[serde(with = "serde_bytes")]
-    signature: Vec<u8>,
+    features: u32,
+    /// [`Features::rows`]: the ECC rows, then the region D2 bins' rows.
+    ecc: Vec<f32>,
+    bins: Vec<u16>,
+    /// The model's D2 histogram, quantised as a signature stores it.
+    d2: Vec<u16>,
+    /// The geodesic descriptor's two histograms, quantised.
+    geodesic: Option<(Vec<u16>, Vec<u16>)>,
+    /// [`LfdSummary::sums`].
     lfd: Option<Vec<u16>>,
 }
 
-/// The compact form of `signature`.
+/// What a row of the index is made of ([`super::Row::compact`]), read from [`of`]'s bytes.
+pub(crate) struct Compact {
+    pub features: Features,
+    pub d2: Vec<f32>,
+    pub geodesic: Option<Cumulative>,
+    pub lfd: Option<LfdSummary>,
+}
+
+/// The compact form of `signature`. Its histograms are quantised as a stored signature's are:
+/// of a signature read from its bytes, rows from this form equal rows from the signature.
 pub fn of(signature: &Signature) -> Vec<u8> {
-    let ranked = Signature {
-        lfd: None,
-        stats: SignatureStats::default(),
-        ..signature.clone()
-    };
+    let features = Features::of(&signature.features);
+    let (count, ecc, bins) = features.rows();
     let stored = Stored {
-        signature: ranked.to_bytes(),
+        features: count as u32,
+        ecc: ecc.to_vec(),
+        bins: bins.to_vec(),
+        d2: quantise(&signature.d2),
+        geodesic: (signature.geodesic.as_ref())
+            .map(|g| (quantise(&g.distances), quantise(&g.eccentricity))),
         lfd: signature.lfd.as_ref().map(|d| d.summary().sums()),
     };
     postcard::to_stdvec(&stored).expect("serialising to memory cannot fail")
 }
 
-/// The signature without its descriptor and the descriptor's summary, from [`of`]'s bytes.
-pub fn read(bytes: &[u8]) -> Result<(Signature, Option<LfdSummary>)> {
+/// The parts of a row, from [`of`]'s bytes.
+pub(crate) fn read(bytes: &[u8]) -> Result<Compact> {
     let corrupt = |message: &str| Error::CorruptSignature {
         message: format!("compact form: {message}"),
     };
     let stored: Stored = postcard::from_bytes(bytes).map_err(|_| corrupt("not readable"))?;
-    let signature = Signature::from_bytes(&stored.signature)?;
+    let features = Features::from_rows(stored.features as usize, stored.ecc, stored.bins)
+        .ok_or_else(|| corrupt("feature rows"))?;
+    let geodesic = stored.geodesic.map(|(distances, eccentricity)| {
+        GeodesicDescriptor {
+            distances: dequantise(&distances),
+            eccentricity: dequantise(&eccentricity),
+        }
+        .cumulative()
+    });
     let lfd = stored
         .lfd
         .map(|sums| LfdSummary::from_sums(&sums).ok_or_else(|| corrupt("light field sums")))
         .transpose()?;
-    Ok((signature, lfd))
+    Ok(Compact {
+        features,
+        d2: dequantise(&stored.d2),
+        geodesic,
+        lfd,
+    })
 }

@@ -20,9 +20,10 @@ use salient_core::rank::vectors::{self, Layout};
 use salient_core::rank::{compact, Fetch, Hit, Index, Method, Request, Row, Search};
 use salient_core::signature::Signature;
 
-/// What the first stage keeps changed after its first release (the compact form came):
-/// rows made before carry another key and are made again.
-const FORM: u32 = 2;
+/// What the first stage keeps: 1 the vectors alone, 2 with a compact form made of the
+/// signature's sections, 3 with the compact form in the index's own layout. Rows made with
+/// another form carry another key and are made again.
+const FORM: u32 = 3;
 
 /// How the store makes the vectors: the pooled rows under the ranking parameters `params`
 /// name, which a change of the weights they depend on (the hybrid's and `W`) makes again.
