@@ -281,7 +281,7 @@ struct Folder<'a> {
 impl part_search::Library for Folder<'_> {
     type Error = anyhow::Error;
 
-    fn nearest(&self, piece: &PackedPiece) -> anyhow::Result<Vec<(f64, String)>> {
+    fn nearest(&self, piece: &PackedPiece) -> anyhow::Result<Vec<(Vec<f64>, String)>> {
         Ok(self
             .indexed
             .par_iter()

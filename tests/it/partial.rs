@@ -124,11 +124,38 @@ fn a_piece_is_described_alike_however_it_is_moved_and_a_model_holds_its_own_piec
     // So it is among the patches stored for partial search (fewer, a byte a value).
     let stored = |mesh: &RawMesh| stored_patches(mesh, &params.mesh).unwrap();
     let packed = Packed::piece(&a);
-    let star = stored(&models[0].1).nearest(&packed);
+    let nearest = |mesh: &RawMesh| {
+        let by_radius = stored(mesh).nearest(&packed);
+        assert_eq!(by_radius.len(), Layout::STORED.radii.len());
+        by_radius.into_iter().fold(f64::INFINITY, f64::min)
+    };
+    let star = nearest(&models[0].1);
     for (id, mesh) in &models[1..] {
-        let other = stored(mesh).nearest(&packed);
+        let other = nearest(mesh);
         assert!(star < other, "{id}: {other} vs the star's {star}");
     }
+}
+
+/// A partial search's candidates: the nearest by each radius's pieces in turn, each model
+/// once, with its nearest of any radius.
+#[test]
+fn candidates_are_taken_radius_by_radius_in_turn() {
+    let models = vec![
+        (vec![0.1, 0.9], "a"),
+        (vec![0.2, 0.1], "b"),
+        (vec![0.3, 0.5], "c"),
+        (vec![0.05, 0.95], "d"),
+    ];
+    assert_eq!(
+        part_search::candidates(models),
+        [(0.05, "d"), (0.1, "b"), (0.1, "a"), (0.3, "c")]
+    );
+    // Without pieces: every model, by id.
+    let bare = vec![(vec![], "x"), (vec![], "a")];
+    assert_eq!(
+        part_search::candidates(bare),
+        [(f64::INFINITY, "a"), (f64::INFINITY, "x")]
+    );
 }
 
 #[test]
@@ -136,38 +163,55 @@ fn packed_patches_measure_as_the_descriptions_within_their_rounding_and_read_bac
     let params = Params::default();
     let prepared = salient_core::mesh::prepare(&collection()[0].1, &params.mesh).unwrap();
     let patches = Patches::compute(&prepared.positions, &prepared.triangles, 5, Layout::STORED);
-    let packed = Packed::of(&patches);
+    let packed = Packed::of(&patches, Layout::STORED);
     assert_eq!(
         patches.len(),
         Layout::STORED.centres * Layout::STORED.radii.len()
     );
+    let least = |d: Vec<f64>| d.into_iter().fold(f64::INFINITY, f64::min);
     // Each value rounds by at most half a step: 24 distribution values in 1/255ths, halved,
     // and 3 spreads in 1/127ths.
     let rounding = 24.0 / 255.0 / 2.0 + 3.0 / 127.0;
     let first = &patches.values[..LEN];
-    for part in patches.values.chunks_exact(LEN).step_by(7) {
+    for (i, part) in patches.values.chunks_exact(LEN).enumerate().step_by(7) {
         let exact = patches.nearest(part);
         let rounded = packed.nearest(&Packed::piece(part));
-        assert!(exact == 0.0 && rounded == 0.0, "a patch is its own nearest");
+        assert!(exact == 0.0, "a patch is its own nearest");
+        // Its own radius holds it.
+        assert_eq!(rounded[usize::from(patches.radii[i])], 0.0, "{rounded:?}");
         let other = Packed::piece(first);
         let (exact, rounded) = (
             piece_distance(part, first),
-            Packed::of(&Patches {
-                values: part.to_vec(),
-                frames: Vec::new(),
-            })
+            Packed::of(
+                &Patches {
+                    values: part.to_vec(),
+                    frames: Vec::new(),
+                    radii: vec![0],
+                },
+                Layout::STORED,
+            )
             .nearest(&other),
         );
+        assert_eq!(
+            rounded[1..],
+            [f64::INFINITY; 3],
+            "no pieces of the other radii"
+        );
+        let rounded = least(rounded);
         assert!((exact - rounded).abs() <= rounding, "{exact} vs {rounded}");
     }
     let bytes = packed.to_bytes();
-    assert_eq!(bytes.len(), 1 + 64 * LEN);
+    assert_eq!(bytes.len(), 2 + 64 * 4 * (1 + LEN));
     assert_eq!(Packed::from_bytes(&bytes), Some(packed));
-    // Another layout's entry, or a damaged one, is made again.
-    let mut other_layout = bytes.clone();
-    other_layout[0] = 0;
-    assert_eq!(Packed::from_bytes(&other_layout), None);
+    // Another layout's entry (the first release's: 64 pieces of one radius), or a damaged
+    // one, is made again.
+    let mut first_release = vec![1];
+    first_release.extend(&bytes[3..3 + 64 * LEN]);
+    assert_eq!(Packed::from_bytes(&first_release), None);
     assert_eq!(Packed::from_bytes(&bytes[..bytes.len() - 1]), None);
+    let mut far_radius = bytes.clone();
+    far_radius[2] = 4;
+    assert_eq!(Packed::from_bytes(&far_radius), None);
     assert_eq!(Packed::from_bytes(&[]), None);
 }
 
@@ -388,7 +432,7 @@ impl Shelf {
 impl Library for Shelf {
     type Error = &'static str;
 
-    fn nearest(&self, piece: &PackedPiece) -> Result<Vec<(f64, String)>, &'static str> {
+    fn nearest(&self, piece: &PackedPiece) -> Result<Vec<(Vec<f64>, String)>, &'static str> {
         if self.down {
             return Err("the store is down");
         }
@@ -620,6 +664,14 @@ async fn patches_are_made_in_the_background_and_pick_what_a_partial_search_verif
     let body = json(search().await).await;
     assert_eq!(verified(&body), ["star"], "{body}");
     assert!(store.all_derived(Derived::Patches).next().is_none());
+    // The tube's patches as the first release stored them (one radius, no radius a piece):
+    // another layout, made again.
+    let tube = json(app.get("/v1/models/tube").send().await).await;
+    let hash = tube["content_hash"].as_str().expect("a hash");
+    let first_release: Vec<u8> = std::iter::once(1).chain([7; 64 * LEN]).collect();
+    assert!(store
+        .put_derived(Derived::Patches, "tube", hash, &first_release)
+        .unwrap());
 
     let mut pending = app.app.patches_pending();
     app.app.start_background();

@@ -162,12 +162,8 @@ pub fn stored_patches<'a>(
     params: &MeshParams,
 ) -> Result<Packed> {
     let mesh = prepare(raw, params)?;
-    Ok(Packed::of(&Patches::compute(
-        &mesh.positions,
-        &mesh.triangles,
-        7,
-        Layout::STORED,
-    )))
+    let patches = Patches::compute(&mesh.positions, &mesh.triangles, 7, Layout::STORED);
+    Ok(Packed::of(&patches, Layout::STORED))
 }
 
 /// Patches of a target whose frames start a placement. These settings were chosen on CAPOD's

@@ -217,7 +217,10 @@ struct Loaded<'a> {
 impl Library for Loaded<'_> {
     type Error = Infallible;
 
-    fn nearest(&self, piece: &PackedPiece) -> std::result::Result<Vec<(f64, String)>, Infallible> {
+    fn nearest(
+        &self,
+        piece: &PackedPiece,
+    ) -> std::result::Result<Vec<(Vec<f64>, String)>, Infallible> {
         Ok(self
             .targets
             .iter()
@@ -231,20 +234,19 @@ impl Library for Loaded<'_> {
 }
 
 impl Loaded<'_> {
-    /// The stored patches of every model, nearest `part` first.
+    /// Every model by its stored patches, in the order a search takes its candidates.
     fn by_patch(&self, query: &PartQuery) -> Vec<(f64, &str)> {
         let Some(probe) = &query.probe else {
             return Vec::new();
         };
         let piece = Packed::piece(probe.description());
-        let mut nearest: Vec<(f64, &str)> = self
-            .collection
-            .models
-            .iter()
-            .map(|m| (self.targets[m.id.as_str()].1.nearest(&piece), m.id.as_str()))
-            .collect();
-        nearest.sort_by(|a, b| a.0.total_cmp(&b.0).then_with(|| a.1.cmp(b.1)));
-        nearest
+        part_search::candidates(
+            self.collection
+                .models
+                .iter()
+                .map(|m| (self.targets[m.id.as_str()].1.nearest(&piece), m.id.as_str()))
+                .collect(),
+        )
     }
 }
 

@@ -31,13 +31,14 @@ impl Layout {
         centres: 64,
         radii: &[0.3, 0.4, 0.5],
     };
-    /// Stored for every model ([`Packed`]) to pick a partial search's candidates. Chosen on
-    /// the tuning halves (`docs/results/partial/`): a third of [`Layout::FRAMES`]'s pieces
-    /// and of its cost (~30 ms of a core a model), the source among the 50 nearest for
-    /// 0.755 of SHREC'07's parts (0.812 with every piece) and 0.907 of CAPOD's (0.911).
+    /// Stored for every model ([`Packed`]) to pick a partial search's candidates, each radius
+    /// in turn ([`crate::part_search::candidates`]). Chosen on the tuning halves
+    /// (`docs/results/partial/`) for parts of 15–50 % of the surface: the source among the 50
+    /// candidates for 0.81–0.90 of CAPOD's parts and 0.60–0.85 of SHREC'07's, where one radius
+    /// of 0.4 gave 0.70–0.71 and 0.49–0.68, at ~3.4× its cost (~185 ms of a core a model).
     pub const STORED: Layout = Layout {
         centres: 64,
-        radii: &[0.4],
+        radii: &[0.25, 0.4, 0.6, 0.9],
     };
 }
 
@@ -145,6 +146,9 @@ pub fn piece_distance(a: &[f32], b: &[f32]) -> f64 {
 pub struct Patches {
     pub values: Vec<f32>,
     pub frames: Vec<Frame>,
+    /// Which of the layout's radii each piece was cut with (its index): a piece too small to
+    /// describe is left out, so the order alone does not say.
+    pub radii: Vec<u8>,
 }
 
 impl Patches {
@@ -158,11 +162,12 @@ impl Patches {
         };
         let mut values = Vec::with_capacity(centres * radii.len() * LEN);
         let mut frames = Vec::with_capacity(centres * radii.len());
+        let mut kept = Vec::with_capacity(centres * radii.len());
         let mut stream = 0;
         let largest = radii.iter().copied().fold(0.0, f64::max);
         for centre in farthest_points(positions, triangles, centres) {
             let around = near(&raw, positions[centre], largest);
-            for &radius in radii {
+            for (index, &radius) in radii.iter().enumerate() {
                 stream += 1;
                 let Some(piece_mesh) = cut(&around, positions[centre], radius) else {
                     continue;
@@ -177,10 +182,15 @@ impl Patches {
                 if let Some(described) = piece(&corners, &mut rng) {
                     values.extend(described.description);
                     frames.push(described.frame);
+                    kept.push(index as u8);
                 }
             }
         }
-        Self { values, frames }
+        Self {
+            values,
+            frames,
+            radii: kept,
+        }
     }
 
     pub fn len(&self) -> usize {
@@ -252,26 +262,34 @@ fn farthest_points(positions: &[DVec3], triangles: &[[u32; 3]], count: usize) ->
 }
 
 /// Patch descriptions as stored ([`Layout::STORED`]), a byte a value: distributions in
-/// 1/255ths, spreads in 1/127ths clamped at 2 mean radii (a straight segment's is 1.15).
-/// 1 728 bytes a model; the rounding moved no tuning half's candidate recall by more than
-/// 0.012.
+/// 1/255ths, spreads in 1/127ths clamped at 2 mean radii (a straight segment's is 1.15), each
+/// with its radius. 7 170 bytes a model; the rounding moved no tuning half's candidate recall
+/// by more than 0.012.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct Packed {
-    pieces: Vec<[u8; LEN]>,
+    /// Each piece's radius (its index in the layout) and description.
+    pieces: Vec<(u8, PackedPiece)>,
+    /// The layout's radii.
+    radii: u8,
 }
 
 /// A part's description in [`Packed`]'s units.
 pub type PackedPiece = [u8; LEN];
 
-/// The first byte of a stored [`Packed`]: entries of another layout or encoding are made again.
-pub const PACKED_LAYOUT: u8 = 1;
+/// The first byte of a stored [`Packed`]: entries of another layout or encoding are made again
+/// (1: 64 × 0.4 of the radius, no radius a piece).
+pub const PACKED_LAYOUT: u8 = 2;
 const DISTRIBUTION_STEPS: f32 = 255.0;
 const SPREAD_STEPS: f32 = 127.0;
 
 impl Packed {
-    pub fn of(patches: &Patches) -> Self {
+    /// `patches` cut in `layout`.
+    pub fn of(patches: &Patches, layout: Layout) -> Self {
         Self {
-            pieces: patches.values.chunks_exact(LEN).map(Self::piece).collect(),
+            pieces: (patches.radii.iter().copied())
+                .zip(patches.values.chunks_exact(LEN).map(Self::piece))
+                .collect(),
+            radii: layout.radii.len() as u8,
         }
     }
 
@@ -289,41 +307,56 @@ impl Packed {
         out
     }
 
-    /// [`piece_distance`] from `part` to the nearest piece; infinite without pieces.
-    pub fn nearest(&self, part: &PackedPiece) -> f64 {
-        self.pieces
-            .iter()
-            .map(|p| {
-                let l1 = |r: std::ops::Range<usize>| -> u32 {
-                    p[r.clone()]
-                        .iter()
-                        .zip(&part[r])
-                        .map(|(a, b)| u32::from(a.abs_diff(*b)))
-                        .sum()
-                };
-                f64::from(l1(0..D2_BINS + D1_BINS)) / (2.0 * f64::from(DISTRIBUTION_STEPS))
-                    + f64::from(l1(D2_BINS + D1_BINS..LEN)) / f64::from(SPREAD_STEPS)
-            })
-            .fold(f64::INFINITY, f64::min)
+    /// [`piece_distance`] from `part` to the nearest piece of each radius of the layout;
+    /// infinite for a radius without pieces.
+    pub fn nearest(&self, part: &PackedPiece) -> Vec<f64> {
+        let mut nearest = vec![f64::INFINITY; usize::from(self.radii)];
+        for (radius, p) in &self.pieces {
+            let l1 = |r: std::ops::Range<usize>| -> u32 {
+                p[r.clone()]
+                    .iter()
+                    .zip(&part[r])
+                    .map(|(a, b)| u32::from(a.abs_diff(*b)))
+                    .sum()
+            };
+            let d = f64::from(l1(0..D2_BINS + D1_BINS)) / (2.0 * f64::from(DISTRIBUTION_STEPS))
+                + f64::from(l1(D2_BINS + D1_BINS..LEN)) / f64::from(SPREAD_STEPS);
+            let kept = &mut nearest[usize::from(*radius)];
+            *kept = kept.min(d);
+        }
+        nearest
     }
 
+    /// The layout's byte, the number of radii, then each piece's radius and description.
     pub fn to_bytes(&self) -> Vec<u8> {
-        std::iter::once(PACKED_LAYOUT)
-            .chain(self.pieces.iter().flatten().copied())
+        let pieces = self
+            .pieces
+            .iter()
+            .flat_map(|(radius, p)| std::iter::once(*radius).chain(p.iter().copied()));
+        [PACKED_LAYOUT, self.radii]
+            .into_iter()
+            .chain(pieces)
             .collect()
     }
 
     /// `None` for an entry of another layout (made again) or a damaged one.
     pub fn from_bytes(bytes: &[u8]) -> Option<Self> {
-        let (&layout, pieces) = bytes.split_first()?;
-        if layout != PACKED_LAYOUT || pieces.len() % LEN != 0 {
+        let [layout, radii, pieces @ ..] = bytes else {
+            return None;
+        };
+        if *layout != PACKED_LAYOUT || pieces.len() % (LEN + 1) != 0 {
             return None;
         }
-        Some(Self {
-            pieces: pieces
-                .chunks_exact(LEN)
-                .map(|c| c.try_into().expect("LEN bytes"))
-                .collect(),
-        })
+        let pieces: Vec<(u8, PackedPiece)> = pieces
+            .chunks_exact(LEN + 1)
+            .map(|c| (c[0], c[1..].try_into().expect("LEN bytes")))
+            .collect();
+        pieces
+            .iter()
+            .all(|(radius, _)| radius < radii)
+            .then_some(Self {
+                pieces,
+                radii: *radii,
+            })
     }
 }

@@ -397,7 +397,7 @@ struct Stored<'a> {
 impl part_search::Library for Stored<'_> {
     type Error = AppError;
 
-    fn nearest(&self, piece: &PackedPiece) -> Result<Vec<(f64, String)>, AppError> {
+    fn nearest(&self, piece: &PackedPiece) -> Result<Vec<(Vec<f64>, String)>, AppError> {
         let mut nearest = Vec::new();
         for entry in self.app.store.all_derived(Derived::Patches) {
             let (id, bytes) = entry?;
