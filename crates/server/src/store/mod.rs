@@ -278,7 +278,7 @@ pub trait Store: Send + Sync {
     ) -> Box<dyn Iterator<Item = StoreResult<(ModelId, Vec<u8>)>> + '_>;
     /// The models whose entry in a derived cache begins with `prefix` (its layout), in id
     /// order. A count of what is made, which on a shared store reads ids rather than every
-    /// entry (170 MB of patches at 100 000 models).
+    /// entry (720 MB of patches at 100 000 models).
     fn derived_ids(
         &self,
         cache: Derived,
