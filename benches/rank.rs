@@ -123,26 +123,20 @@ fn candidate_rows(models: &[(usize, Signature)]) {
     let compacts: Vec<Vec<u8>> = models.iter().map(|(_, s)| compact::of(s)).collect();
     let none: Fetch = Arc::new(|_: &[Arc<str>]| Ok(Vec::new()));
     let away = Index::away(Params::default().similarity, none);
-    let clock = Instant::now();
-    for (i, bytes) in compacts
-        .iter()
-        .cycle()
-        .take(rounds * compacts.len())
-        .enumerate()
-    {
+    // µs per form of `read`, over `rounds` passes.
+    let per_form = |forms: &[Vec<u8>], read: &dyn Fn(usize, &[u8])| {
+        let clock = Instant::now();
+        for (i, bytes) in forms.iter().cycle().take(rounds * forms.len()).enumerate() {
+            read(i, bytes);
+        }
+        clock.elapsed().as_secs_f64() * 1e6 / (rounds * forms.len()) as f64
+    };
+    let compact_us = per_form(&compacts, &|i, bytes| {
         std::hint::black_box(away.compact_row(format!("m{i}"), bytes).expect("readable"));
-    }
-    let compact_us = clock.elapsed().as_secs_f64() * 1e6 / (rounds * compacts.len()) as f64;
-    let clock = Instant::now();
-    for (i, bytes) in stored
-        .iter()
-        .cycle()
-        .take(rounds * stored.len())
-        .enumerate()
-    {
-        std::hint::black_box((i, Signature::from_bytes(bytes).expect("readable")));
-    }
-    let whole_us = clock.elapsed().as_secs_f64() * 1e6 / (rounds * stored.len()) as f64;
+    });
+    let whole_us = per_form(&stored, &|_, bytes| {
+        std::hint::black_box(Signature::from_bytes(bytes).expect("readable"));
+    });
     let mean = |forms: &[Vec<u8>]| forms.iter().map(Vec::len).sum::<usize>() / forms.len();
     eprintln!(
         "a candidate's row: from its compact form {compact_us:.1} µs ({} bytes); decoding \
