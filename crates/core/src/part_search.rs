@@ -145,9 +145,10 @@ pub fn search<L: Library>(
 ///
 /// Why in turn: a part's size in its model is not known, and a large piece matches a small
 /// part's generic surface too well, so the nearest piece of any radius lets one size crowd
-/// out the others. On the tuning halves (`docs/results/partial/`), for parts of 15 % of the
-/// surface, the source was among the 50 candidates for 0.44 of SHREC'07's parts by the
-/// nearest piece of any radius and 0.60 in turn (one radius of 0.4: 0.58).
+/// out the others. On the tuning halves (`docs/results/partial/`, every model ranked by its
+/// patches alone), for parts of 15 % of the surface, the source was among the 50 nearest for
+/// 0.44 of SHREC'07's parts by the nearest piece of any radius and 0.60 in turn (one radius
+/// of 0.4: 0.58).
 pub fn candidates<S: Ord>(models: Vec<(Vec<f64>, S)>) -> Vec<(f64, S)> {
     // At least one order, so that every model is taken even without distances.
     let radii = models
