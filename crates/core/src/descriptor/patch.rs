@@ -37,7 +37,7 @@ impl Layout {
     /// its patches alone, the source among the 50 nearest for 0.81–0.90 of CAPOD's parts and
     /// 0.60–0.85 of SHREC'07's, where one radius of 0.4 gave 0.70–0.71 and 0.49–0.68. Served
     /// (only models the part fits are candidates), CAPOD's tuning half registered the source
-    /// for 0.64–0.74 of them (0.56–0.65 with one radius). ~3.4× the cost (~185 ms a model).
+    /// for 0.60–0.74 of them (0.56–0.65 with one radius). ~3.4× the cost (~185 ms a model).
     pub const STORED: Layout = Layout {
         centres: 64,
         radii: &[0.25, 0.4, 0.6, 0.9],
