@@ -30,7 +30,7 @@ use rstest_reuse::apply;
 const NO_PATCHES: &[(f64, String)] = &[];
 
 /// The collection: a star with five spikes, and shapes without them.
-fn collection() -> Vec<(&'static str, RawMesh)> {
+pub(crate) fn collection() -> Vec<(&'static str, RawMesh)> {
     vec![
         ("star", shapes::star(4, &shapes::five_tips())),
         ("sphere", shapes::icosphere(4)),
@@ -41,7 +41,7 @@ fn collection() -> Vec<(&'static str, RawMesh)> {
 
 /// The star's +x spike and the body around its root: the surface within 0.6 of the spike's
 /// middle (the star's radius is 1.3).
-fn spike() -> RawMesh {
+pub(crate) fn spike() -> RawMesh {
     let star = &collection()[0].1;
     cut(star, DVec3::new(0.9, 0.0, 0.0), 0.6).expect("the ball holds part of the star")
 }

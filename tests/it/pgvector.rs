@@ -1,6 +1,7 @@
-//! The hybrid's first stage in PostgreSQL (`--index pgvector`, #40): on a catalogue the
-//! oversampling covers, the same ranking as the exact in-memory index, said to be
-//! approximate; filters, the model itself left out, deletes and edits honoured.
+//! The first stage in PostgreSQL (`--index pgvector`, #40): on a catalogue the oversampling
+//! covers, the same rankings as the exact in-memory index, said to be approximate; filters,
+//! the model itself left out, deletes and edits honoured; nothing per model in the replica's
+//! memory, and every search served there or refused clearly.
 
 use std::sync::Arc;
 
@@ -9,7 +10,7 @@ use salient_core::Signature;
 use salient_server::api::config::FirstStageKind;
 use salient_server::api::{first_stage, App, Config};
 use salient_server::store::{PostgresStore, Store};
-use serde_json::Value;
+use serde_json::{json, Value};
 
 use crate::app::TestApp;
 use crate::server::obj;
@@ -97,9 +98,12 @@ postgres_only! {
         assert!(cones.iter().all(|(id, _)| id.starts_with("cone")), "{cones:?}");
         let all = ids(&ranked(&approximate, "/v1/models/star/similar?k=10").await);
         assert_eq!(all.len(), 7, "every other model, itself left out: {all:?}");
-        // Other methods and weights rank on the exact index.
-        let d2 = ranked(&approximate, "/v1/models/star/similar?method=d2").await;
-        assert_eq!(d2["approximate"], false);
+        // Other methods and weights rank the first stage's candidates too.
+        for path in ["/v1/models/star/similar?method=d2", "/v1/models/tube1/similar?w=0.3"] {
+            let (a, e) = (ranked(&approximate, path).await, ranked(&exact, path).await);
+            assert_eq!((&a["approximate"], &e["approximate"]), (&json!(true), &json!(false)));
+            assert_eq!(ids(&a), ids(&e), "{path}");
+        }
 
         // A deleted model leaves the first stage; an edited tag moves a model's filter.
         let deleted = approximate.delete("/v1/models/cone1").send().await;
@@ -122,8 +126,9 @@ postgres_only! {
 
 postgres_only! {
     /// Vectors made for other weights are made again when a replica opens the first stage; a
-    /// stale model has none and is ranked exactly; a replica without the first stage cannot
-    /// serve `index = "pgvector"`.
+    /// stale model has none, is left out of rankings (and counted so) and cannot be asked
+    /// about until re-extracted; a replica without the first stage cannot serve
+    /// `index = "pgvector"`.
     #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
     async fn the_first_stage_is_made_again_for_other_weights_and_required_by_its_mode() {
         let url = fresh_database_url();
@@ -180,7 +185,7 @@ postgres_only! {
         assert_eq!(kept().await, (spec.key.clone(), true));
 
         // A model stored before a descriptor existed has no vector: left out of the first
-        // stage, and its `similar` ranked exactly.
+        // stage, which says so, and not a query until it is re-extracted.
         let record = store.get("m").unwrap().unwrap();
         let mut signature = Signature::from_bytes(&store.signature("m").unwrap().unwrap()).unwrap();
         signature.geodesic = None;
@@ -188,8 +193,14 @@ postgres_only! {
         assert_eq!(kept().await, (spec.key.clone(), false));
         drop(store);
         let app = service(&url, FirstStageKind::Pgvector);
-        let body = ranked(&app, "/v1/models/m/similar").await;
-        assert_eq!(body["approximate"], false, "{body}");
+        let response = app.get("/v1/models/m/similar").send().await;
+        assert_eq!(response.status(), StatusCode::CONFLICT);
+        let body: Value = response.json();
+        assert!(body["error"]["message"].as_str().unwrap().contains("reindex"), "{body}");
+        let response = app.post("/v1/search").header("content-type", "model/obj").body(obj(&shapes::tube(0.3, 20, 16))).send().await;
+        assert_eq!(response.status(), StatusCode::OK);
+        let body: Value = response.json();
+        assert_eq!((body["results"].as_array().unwrap().len(), &body["left_out"]), (0, &json!(1)), "{body}");
 
         let config = Config {
             index: FirstStageKind::Pgvector,
@@ -198,5 +209,52 @@ postgres_only! {
         let plain = PostgresStore::open(&url).unwrap();
         let refused = App::new(config, Arc::new(plain)).err().expect("refused");
         assert!(refused.to_string().contains("--index pgvector"), "{refused}");
+    }
+}
+
+postgres_only! {
+    /// A replica with its first stage in the database keeps no row per model, and serves
+    /// from there a partial search (among the models the patches name) and a duplicate check
+    /// as the exact replica does on a small catalogue; duplicate groups, which compare every
+    /// model with every other, it refuses and says where to ask.
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn a_replica_with_its_first_stage_in_the_database_keeps_no_rows_and_serves_parts_and_duplicates() {
+        let url = fresh_database_url();
+        let lean = service(&url, FirstStageKind::Pgvector);
+        for (id, mesh) in crate::partial::collection() {
+            let response = lean.add(&format!("id={id}"), "model/obj", obj(&mesh)).await;
+            assert_eq!(response.status(), StatusCode::CREATED, "{id}");
+        }
+        let mut pending = lean.app.patches_pending();
+        lean.app.start_background();
+        pending.wait_for(|p| *p == Some(0)).await.unwrap();
+        let exact = service(&url, FirstStageKind::Memory);
+        assert_eq!((lean.app.rows_in_memory(), exact.app.rows_in_memory()), (0, 4));
+
+        /// The response of an upload posted to `path` on `app`, which must answer 200.
+        async fn posted(app: &TestApp, path: &str, body: Vec<u8>) -> Value {
+            let response = app.post(path).header("content-type", "model/obj").body(body).send().await;
+            assert_eq!(response.status(), StatusCode::OK, "{path}");
+            response.json()
+        }
+        let part = obj(&crate::partial::spike());
+        let path = "/v1/search?mode=partial&k=3";
+        let (a, e) = (posted(&lean, path, part.clone()).await, posted(&exact, path, part).await);
+        assert_eq!((&a["approximate"], &e["approximate"]), (&json!(true), &json!(false)));
+        assert_eq!(a["results"][0]["id"], "star", "{a}");
+        assert_eq!(ids(&a), ids(&e));
+
+        let copy = obj(&crate::duplicates::rescaled(&shapes::tube(0.3, 30, 24)));
+        let path = "/v1/duplicates/check";
+        let (a, e) = (posted(&lean, path, copy.clone()).await, posted(&exact, path, copy).await);
+        assert_eq!(a["matches"][0]["id"], "tube", "{a}");
+        assert_eq!(a["matches"], e["matches"]);
+
+        let groups = lean.get("/v1/duplicates").send().await;
+        assert_eq!(groups.status(), StatusCode::CONFLICT);
+        let body: Value = groups.json();
+        assert_eq!(body["error"]["code"], "not_configured");
+        assert!(body["error"]["message"].as_str().unwrap().contains("--index memory"), "{body}");
+        assert_eq!(exact.get("/v1/duplicates").send().await.status(), StatusCode::OK);
     }
 }

@@ -392,9 +392,8 @@ fn entries_survive_changes_across_chunks() {
     let (replaced, with) = (&collection[2100].0, &collection[6].1);
     index.insert(replaced.clone(), with).expect("shelved");
     assert_eq!(index.len(), collection.len() - removed.len());
-    let params = Params::default();
     for (n, (id, s)) in collection.iter().enumerate() {
-        let kept = index.stale(id, &params).is_some();
+        let kept = index.contains(id);
         assert_eq!(kept, !removed.contains(&id.as_str()), "{id}");
         // What an entry holds: its own signature is at distance 0 from it.
         if kept && n % 97 == 0 {
@@ -686,8 +685,6 @@ fn compact_rows_with_descriptors_away_rank_as_whole_signatures() {
                 .expect("reads");
             away.put(row);
         }
-        // The form leaves the extraction parameters out: staleness is not known.
-        assert_eq!(away.stale(first_id, &Params::default()), None);
         let request = Request::model(query, Method::Hybrid, 10);
         let (expected, ranked) = (whole.search(&request), away.search(&request));
         assert_eq!(

@@ -26,7 +26,7 @@ use serde::{Deserialize, Serialize};
 use crate::descriptor::geodesic::Cumulative;
 use crate::descriptor::lfd::LfdQuery;
 use crate::descriptor::{histogram_l1, GeodesicDescriptor, LightFieldDescriptor};
-use crate::params::{HybridParams, Params, SimilarityParams};
+use crate::params::{HybridParams, SimilarityParams};
 use crate::partial::{Fit, Part};
 use crate::signature::Signature;
 use crate::similarity::{
@@ -516,8 +516,6 @@ pub struct Index {
     params: SimilarityParams,
     entries: Columns,
     position: imbl::HashMap<Arc<str>, usize>,
-    /// The distinct extraction parameters of the entries, shared by them (usually one).
-    extractions: Vec<Arc<Params>>,
     /// Where the entries' light field descriptors are kept ([`shelf`]).
     shelf: Arc<Place>,
 }
@@ -561,7 +559,6 @@ impl Index {
             params,
             entries: Columns::default(),
             position: imbl::HashMap::new(),
-            extractions: Vec::new(),
             shelf: Arc::new(place),
         }
     }
@@ -607,13 +604,7 @@ impl Index {
 
     /// Adds an entry made by this index's [`Index::row`] (or a copy's), replacing one with
     /// the same id.
-    pub fn put(&mut self, mut row: Row) {
-        if let Some(extraction) = row.extraction() {
-            match self.extractions.iter().find(|p| *p == extraction) {
-                Some(p) => row.share(p.clone()),
-                None => self.extractions.push(extraction.clone()),
-            }
-        }
+    pub fn put(&mut self, row: Row) {
         match self.position.get(row.id()) {
             Some(&i) => self.entries.set(i, row),
             None => {
@@ -649,12 +640,9 @@ impl Index {
         true
     }
 
-    /// Whether the entry `id` is stale under `current` ([`Signature::staleness`]); `None`
-    /// when there is no such entry, or it does not know its parameters (made by
-    /// [`Index::compact_row`]).
-    pub fn stale(&self, id: &str, current: &Params) -> Option<bool> {
-        let &i = self.position.get(id)?;
-        Some(self.entries.get(i).staleness(current)?.is_some())
+    /// Whether the index holds an entry `id`.
+    pub fn contains(&self, id: &str) -> bool {
+        self.position.contains_key(id)
     }
 
     /// The parameters the index compares with.
@@ -1352,6 +1340,7 @@ fn sort_hits(hits: &mut [Hit]) {
 mod tests {
     use super::*;
     use crate::emd::SOLVED;
+    use crate::params::Params;
     use crate::signature::Feature;
 
     fn signature(features: usize, shift: f64) -> Signature {

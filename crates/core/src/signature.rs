@@ -150,19 +150,9 @@ pub enum Staleness {
 impl Signature {
     /// `None` if this signature is what extracting its mesh with `current` would give.
     pub fn staleness(&self, current: &Params) -> Option<Staleness> {
-        let complete = self.lfd.is_some() && self.geodesic.is_some();
-        Staleness::of(&self.params, complete, current)
-    }
-}
-
-impl Staleness {
-    /// The rule, from what it reads: the parameters a signature was made with and whether
-    /// it holds every descriptor (so that the ranking index, which keeps no signatures,
-    /// applies it too).
-    pub fn of(made_with: &Params, complete: bool, current: &Params) -> Option<Self> {
-        if !made_with.same_extraction(current) {
+        if !self.params.same_extraction(current) {
             Some(Staleness::Parameters)
-        } else if !complete {
+        } else if self.lfd.is_none() || self.geodesic.is_none() {
             Some(Staleness::MissingDescriptor)
         } else {
             None

@@ -15,8 +15,8 @@ use rayon::prelude::*;
 use crate::descriptor::geodesic::Cumulative;
 use crate::descriptor::lfd::{LfdSketch, LfdSummary, SketchSpan};
 use crate::descriptor::{GeodesicDescriptor, LightFieldDescriptor, Span};
-use crate::params::{Params, SimilarityParams};
-use crate::signature::{Signature, Staleness};
+use crate::params::SimilarityParams;
+use crate::signature::Signature;
 use crate::similarity::{Centroid, Features, Summary};
 
 use super::compact::Compact;
@@ -186,7 +186,6 @@ impl Rows {
 #[derive(Debug, Clone, Default)]
 struct Chunk {
     ids: Vec<Arc<str>>,
-    extractions: Vec<Option<Arc<Params>>>,
     features: Vec<Features>,
     light_fields: Vec<Option<Arc<Slot>>>,
     summaries: Vec<Summary>,
@@ -203,8 +202,6 @@ struct Chunk {
 /// What the index keeps of one model, computed once when it is inserted.
 pub struct Row {
     id: Arc<str>,
-    /// `None` for a row made from a compact form, which leaves the parameters out.
-    extraction: Option<Arc<Params>>,
     features: Features,
     light_field: Option<Arc<Slot>>,
     d2: Vec<f32>,
@@ -231,9 +228,7 @@ impl Row {
             geodesic: (signature.geodesic.as_ref()).map(GeodesicDescriptor::cumulative),
             lfd,
         };
-        let mut row = Self::compact(id, compact, slot, params);
-        row.extraction = Some(Arc::new(signature.params.clone()));
-        row
+        Self::compact(id, compact, slot, params)
     }
 
     /// The row of a model's [`compact`](super::compact) form, its descriptor kept as
@@ -260,19 +255,7 @@ impl Row {
             d2,
             geodesic,
             id,
-            extraction: None,
         }
-    }
-
-    /// The parameters it was extracted with, to share with other rows; `None` when not known.
-    pub fn extraction(&self) -> Option<&Arc<Params>> {
-        self.extraction.as_ref()
-    }
-
-    /// Shares `extraction`, equal to this row's.
-    pub fn share(&mut self, extraction: Arc<Params>) {
-        debug_assert!(self.extraction.as_deref() == Some(&*extraction));
-        self.extraction = Some(extraction);
     }
 
     pub fn id(&self) -> &Arc<str> {
@@ -310,7 +293,6 @@ impl Chunk {
         self.ecc_mean.set(slot, &row.centroid.0);
         self.d2_mean.set(slot, &row.centroid.1);
         put(&mut self.ids, slot, row.id);
-        put(&mut self.extractions, slot, row.extraction);
         put(&mut self.features, slot, row.features);
         put(&mut self.light_fields, slot, row.light_field);
         put(&mut self.summaries, slot, row.summary);
@@ -354,7 +336,6 @@ impl Chunk {
             centroid,
             d2: self.d2.pop(),
             id: self.ids.pop().expect(TAKEN),
-            extraction: self.extractions.pop().expect(TAKEN),
             features: self.features.pop().expect(TAKEN),
             light_field: self.light_fields.pop().expect(TAKEN),
             summary: self.summaries.pop().expect(TAKEN),
@@ -417,18 +398,6 @@ impl<'a> Entry<'a> {
             lfd,
             geodesic: self.geodesic(),
         }
-    }
-
-    /// [`Signature::staleness`] of the entry's signature; `None` when the entry does not know
-    /// its parameters (made from a compact form).
-    pub fn staleness(self, current: &Params) -> Option<Option<Staleness>> {
-        let holds = self.held();
-        let extraction = self.chunk.extractions[self.slot].as_ref()?;
-        Some(Staleness::of(
-            extraction,
-            holds.lfd && holds.geodesic,
-            current,
-        ))
     }
 
     /// The ECC bound's side ([`Summary`]).
@@ -562,7 +531,6 @@ impl Columns {
         let (chunk, slot) = (Arc::make_mut(&mut self.chunks[i / CHUNK]), i % CHUNK);
         Row {
             id: chunk.ids[slot].clone(),
-            extraction: chunk.extractions[slot].clone(),
             features: std::mem::take(&mut chunk.features[slot]),
             light_field: chunk.light_fields[slot].take(),
             d2: chunk.d2.get(slot).to_vec(),

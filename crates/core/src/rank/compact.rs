@@ -10,9 +10,8 @@
 //! rows, the quantised histograms), uncompressed (1.9 KB): a ranking reads a thousand of
 //! these, and a row from one costs 5.9 µs, where decoding a signature's compressed sections,
 //! its parameters (JSON) and its features one allocation each costs 29 µs (`benches/rank.rs`,
-//! the load bench's base models). It
-//! leaves out the extraction parameters, so a row made from it cannot say whether its
-//! model is stale ([`super::Index::stale`] answers `None`).
+//! the load bench's base models). It leaves out the extraction parameters: whether a model
+//! is stale is the service's to know, from the stored signature.
 
 use serde::{Deserialize, Serialize};
 

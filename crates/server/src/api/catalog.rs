@@ -1,4 +1,5 @@
-//! The in-memory view of the store that requests read: every record and the ranking index.
+//! The in-memory view of the store that requests read: every record, which models are stale,
+//! and the ranking index (empty on a replica whose first stage is in the database).
 //!
 //! Published as immutable snapshots behind an [`ArcSwap`]: a reader takes the current
 //! snapshot (an `Arc`, no lock) and keeps it for as long as it ranks, on whatever thread; a
@@ -17,60 +18,129 @@ use arc_swap::ArcSwap;
 use super::copies::{Copies, Spot};
 use crate::api::error::AppError;
 use crate::model::{ModelId, ModelRecord};
-use salient_core::params::{Params, SimilarityParams};
-use salient_core::rank::{Index, Row};
+use salient_core::params::Params;
+use salient_core::rank::{Coverage, Index, Row, Scope};
 use salient_core::signature::Signature;
 
 /// One consistent state of the catalogue.
 #[derive(Clone)]
 pub struct Snapshot {
     pub records: imbl::OrdMap<ModelId, Arc<ModelRecord>>,
+    /// Every model's row when this replica ranks in memory; none when its first stage is in
+    /// the database (`--index pgvector`, #40), where each ranking makes an index of its
+    /// candidates and nothing per model stays in this process but its record.
     pub index: Index,
+    in_memory: bool,
+    /// The parameters a signature is stale under: this replica's.
+    params: Arc<Params>,
+    /// The models whose signature is stale ([`Signature::staleness`]), and whether it holds
+    /// every descriptor (what the first stage's vectors are made of): usually none.
+    stale: imbl::OrdMap<ModelId, Stale>,
     /// This replica's copies of the stored signatures, on a shared store ([`copies`]).
     copies: Option<Arc<Copies>>,
     spots: imbl::OrdMap<ModelId, Spot>,
 }
 
+#[derive(Clone, Copy)]
+struct Stale {
+    complete: bool,
+}
+
 /// What the catalogue keeps of a model beside its record, made before the store is written
 /// ([`Catalog::hold`]).
 pub struct Held {
-    row: Row,
+    row: Option<Row>,
+    stale: Option<Stale>,
     copy: Option<Spot>,
 }
 
 impl Snapshot {
-    /// An empty catalogue whose index shelves light field descriptors in `shelf_dir`, or
-    /// in the system's temporary folder, and that keeps copies of signatures in `copies`.
+    /// An empty catalogue of a replica with `params`, whose index keeps every model's row
+    /// `in_memory` (its light field descriptors shelved in `shelf_dir`, or in the system's
+    /// temporary folder) or none, and that keeps copies of signatures in `copies`.
     pub fn empty(
-        similarity: SimilarityParams,
+        params: &Params,
+        in_memory: bool,
         shelf_dir: Option<PathBuf>,
         copies: Option<Arc<Copies>>,
     ) -> Self {
+        let dir = shelf_dir.unwrap_or_else(std::env::temp_dir);
         Self {
             records: imbl::OrdMap::new(),
-            index: Index::shelved_in(similarity, shelf_dir.unwrap_or_else(std::env::temp_dir)),
+            index: Index::shelved_in(params.similarity.clone(), dir),
+            in_memory,
+            params: Arc::new(params.clone()),
+            stale: imbl::OrdMap::new(),
             copies,
             spots: imbl::OrdMap::new(),
         }
     }
 
-    /// The index entry of model `id` (its light field shelved) and the copy of its stored
-    /// signature `bytes`, if this catalogue keeps copies.
+    /// What the catalogue keeps of model `id`: its index entry (its light field shelved) if
+    /// it ranks in memory, whether it is stale, and the copy of its stored signature `bytes`,
+    /// if this catalogue keeps copies.
     pub fn hold(&self, id: &ModelId, signature: &Signature, bytes: &[u8]) -> io::Result<Held> {
+        let row = self
+            .in_memory
+            .then(|| self.index.row(id.as_str(), signature));
         Ok(Held {
-            row: self.index.row(id.as_str(), signature)?,
+            row: row.transpose()?,
+            stale: signature.staleness(&self.params).map(|_| Stale {
+                complete: signature.lfd.is_some() && signature.geodesic.is_some(),
+            }),
             copy: self.copies.as_ref().map(|c| c.put(bytes)).transpose()?,
         })
     }
 
     /// Adds or replaces a model with what [`Snapshot::hold`] made of it.
     pub fn put(&mut self, record: ModelRecord, held: Held) {
-        self.index.put(held.row);
+        if let Some(row) = held.row {
+            self.index.put(row);
+        }
+        match held.stale {
+            Some(stale) => self.stale.insert(record.id.clone(), stale),
+            None => self.stale.remove(&record.id),
+        };
         match held.copy {
             Some(spot) => self.spots.insert(record.id.clone(), spot),
             None => self.spots.remove(&record.id),
         };
         self.records.insert(record.id.clone(), Arc::new(record));
+    }
+
+    /// Whether this replica ranks every model in memory (else each ranking's candidates come
+    /// from the first stage in the database).
+    pub fn in_memory(&self) -> bool {
+        self.in_memory
+    }
+
+    /// Whether model `id`'s signature is stale under this replica's parameters.
+    pub fn is_stale(&self, id: &ModelId) -> bool {
+        self.stale.contains_key(id)
+    }
+
+    /// The number of stale signatures.
+    pub fn stale_count(&self) -> usize {
+        self.stale.len()
+    }
+
+    /// What a ranking with the first stage in the database leaves out of `scope`: the models
+    /// without the descriptors its vectors are made of, which no method ranks there until
+    /// they are re-extracted.
+    pub fn unranked(&self, scope: &Scope) -> Coverage {
+        let left_out = self
+            .stale
+            .iter()
+            .filter(|(id, stale)| {
+                !stale.complete
+                    && scope.without != Some(id.as_str())
+                    && scope.keep.is_none_or(|keep| keep(id.as_str()))
+            })
+            .count();
+        Coverage {
+            left_out,
+            partial: 0,
+        }
     }
 
     /// This replica's copy of model `id`'s stored signature, if it keeps copies.
@@ -89,18 +159,15 @@ impl Snapshot {
         self.copies.clone()
     }
 
-    /// The ids of models whose signature is stale under `params`, in id order, after `after`.
+    /// The ids of models whose signature is stale, in id order, after `after`.
     pub fn stale_after<'a>(
         &'a self,
         after: Option<&'a ModelId>,
-        params: &'a Params,
     ) -> impl Iterator<Item = &'a ModelId> + 'a {
         let start = after.map_or(std::ops::Bound::Unbounded, std::ops::Bound::Excluded);
-        let records = self
-            .records
+        self.stale
             .range::<_, ModelId>((start, std::ops::Bound::Unbounded))
-            .map(|(id, _)| id);
-        records.filter(|id| self.index.stale(id.as_str(), params) == Some(true))
+            .map(|(id, _)| id)
     }
 }
 
@@ -196,6 +263,7 @@ impl Catalog {
         self.note([id.clone()]);
         self.update(|s| {
             s.index.remove(id.as_str());
+            s.stale.remove(id);
             s.records.remove(id);
             s.spots.remove(id);
         })

@@ -19,6 +19,7 @@ use serde::{Deserialize, Serialize};
 
 use super::error::{AppError, ErrorBody};
 use super::evidence::{DuplicateMatch, EvidenceSchema};
+use super::first_stage::Searcher;
 use super::request::{page_size, AppQuery};
 use super::upload::MeshUpload;
 use super::{App, AppState};
@@ -150,6 +151,14 @@ pub async fn list_duplicates(
     let limit = page_size(q.limit)?;
     let min = q.min_evidence.unwrap_or(Evidence::SameShape);
     let p = app.config.params.similarity.duplicates.clone();
+    if !app.catalog.snapshot().in_memory() {
+        return Err(AppError::NotConfigured(
+            "duplicate groups compare every stored model with the others, which needs the \
+             in-memory index: ask a replica started with --index memory (a check of one \
+             upload, POST /v1/duplicates/check, works here)"
+                .to_string(),
+        ));
+    }
     let (candidates, records) = app
         .read_catalog(move |catalog| {
             let pairs = catalog.index.near_pairs(p.d2, p.lfd)?;
@@ -224,6 +233,7 @@ pub(super) async fn duplicates_of(
 ) -> Result<Vec<DuplicateMatch>, AppError> {
     let p = app.config.params.similarity.duplicates.clone();
     let hash = upload.content_hash().to_string();
+    let ranker = app.0.clone();
     let (same_file, mut candidates) = app
         .read_catalog(move |catalog| {
             let without = exclude.as_ref().map(ModelId::as_str);
@@ -237,7 +247,7 @@ pub(super) async fn duplicates_of(
                 without,
                 keep: None,
             };
-            let ranking = catalog.index.search(
+            let ranking = Searcher::of(&ranker, catalog, None).search(
                 &Request::model(&query, Method::Lfd, p.candidates)
                     .scope(scope)
                     .within(p.lfd),

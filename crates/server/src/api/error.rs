@@ -98,10 +98,14 @@ pub struct ErrorDetail {
 }
 
 impl AppError {
-    /// The ranking index's shelf failed (`rank::shelf`): by its kind only, since an I/O
-    /// error's text may name a file.
+    /// The ranking index failed: the store a first stage in the database reads (its own
+    /// error), or the shelf (`rank::shelf`), by its kind only, since an I/O error's text may
+    /// name a file.
     pub fn index(e: std::io::Error) -> Self {
-        AppError::Internal(format!("ranking index shelf: {}", e.kind()))
+        match e.downcast::<StoreError>() {
+            Ok(e) => AppError::from(e),
+            Err(e) => AppError::Internal(format!("ranking index shelf: {}", e.kind())),
+        }
     }
 
     pub fn bad_request(code: &'static str, message: impl Into<String>) -> Self {
@@ -116,7 +120,7 @@ impl AppError {
         match self {
             AppError::Internal(_) => INTERNAL_MESSAGE.to_string(),
             AppError::StoreUnavailable(_) => format!(
-                "the store cannot be reached now; retry in {RETRY_STORE_SECS} s (what needs only this replica's memory, ranking among them, still answers)"
+                "the store cannot be reached now; retry in {RETRY_STORE_SECS} s (what needs only this replica's memory still answers: with the in-memory index, rankings too)"
             ),
             other => other.to_string(),
         }

@@ -1,23 +1,28 @@
-//! The hybrid's rankings with their first stage in the database (`--index pgvector`, #40):
-//! pgvector's HNSW index finds about the `k × first_stage_oversampling` models nearest the
-//! query by their vectors ([`salient_core::rank::vectors`], one per model, pooled: as good as
-//! one per light field in `benches/first_stage.rs`, at a tenth of the rows), with their
-//! compact forms ([`salient_core::rank::compact`]) in the same round trip, and this replica
-//! ranks those by their exact distance: the bounds first, then the distances of the few they
-//! leave, whose light field descriptors come in batches from their stored signatures.
-//! Approximate, and said so in the response: a model the first stage misses is not ranked.
+//! Rankings with their first stage in the database (`--index pgvector`, #40): pgvector's
+//! HNSW index finds about the `k × first_stage_oversampling` models nearest the query by
+//! their vectors ([`salient_core::rank::vectors`], one per model, pooled: as good as one per
+//! light field in `benches/first_stage.rs`, at a tenth of the rows), with their compact forms
+//! ([`salient_core::rank::compact`]) in the same round trip, and this replica ranks those by
+//! their exact distance under any method. The vectors are the hybrid's, so the other
+//! methods' first stage is the hybrid's too. Approximate, and said so in the response: a
+//! model the first stage misses is not ranked. Nothing per model stays in the replica's
+//! memory but its record.
 
+use std::cell::Cell;
+use std::io;
 use std::sync::Arc;
 
 use rayon::prelude::*;
 
+use super::catalog::Snapshot;
 use super::config::{Config, FirstStageKind};
-use super::error::AppError;
 use super::App;
 use crate::store::{Candidate, Kept, PostgresStore, Store, StoreError, VectorSpec};
 use salient_core::params::{Params, SimilarityParams};
 use salient_core::rank::vectors::{self, Layout};
-use salient_core::rank::{compact, Fetch, Hit, Index, Method, Request, Row, Search};
+use salient_core::rank::{
+    compact, Coverage, Fetch, Index, Method, Query, Ranking, Request, Row, Scope, Search,
+};
 use salient_core::signature::Signature;
 
 /// What the first stage keeps: 1 the vectors alone, 2 with a compact form made of the
@@ -60,77 +65,131 @@ fn vector(signature: &Signature, params: &SimilarityParams) -> Option<Vec<f32>> 
     vectors::rows(signature, params, Layout::Pooled)?.pop()
 }
 
-/// A ranking of the first stage's candidates.
-pub struct Ranked {
-    pub hits: Vec<Hit>,
-    /// Candidates whose exact distance was computed, and those rejected by a bound.
-    pub evaluated: usize,
-    pub pruned: usize,
-    /// Time in the database.
-    pub first_stage_ms: f64,
+/// Whether the first stage can rank with `signature`: it has the descriptors the vectors are
+/// made of (a stored model made before one existed has not, until re-extracted).
+pub fn ranks(signature: &Signature) -> bool {
+    signature.lfd.is_some() && signature.geodesic.is_some()
 }
 
-/// The `k` models nearest `query` by the hybrid distance among the first stage's candidates
-/// that have `tag`, `without` left out; `None` for a query without a vector (a stored model
-/// made before a descriptor existed), which the caller ranks on the exact index.
-pub async fn rank(
-    app: &Arc<App>,
-    query: Arc<Signature>,
-    k: usize,
-    tag: Option<String>,
-    without: Option<String>,
-) -> Result<Option<Ranked>, AppError> {
-    let params = app.config.params.similarity.clone();
-    let Some(vector) = vector(&query, &params) else {
-        return Ok(None);
-    };
-    let config = &app.config;
-    let count = k
-        .saturating_mul(config.first_stage_oversampling)
-        .min(config.first_stage_max_candidates)
-        .max(k);
-    let clock = std::time::Instant::now();
-    let candidates = app
-        .with_store(move |store| {
-            let stage = store.first_stage().expect("checked at start");
-            stage.nearest(&vector, count, tag.as_deref(), without.as_deref())
-        })
-        .await?;
-    let first_stage_ms = clock.elapsed().as_secs_f64() * 1e3;
-    let fetch = light_fields(app.store.clone());
-    let turn = app.rankers.turn().await;
-    tokio::task::spawn_blocking(move || {
-        turn.install(|| {
-            // The candidates ranked as the in-memory index ranks all models: bounds first,
-            // the exact distance of the few they cannot reject. A compact form this release
-            // cannot read is a candidate left out, as a model without a vector is.
-            let mut index = Index::away(params, fetch);
-            let rows: Vec<Row> = candidates
-                .par_iter()
-                .filter_map(|Candidate { id, compact }| {
-                    let row = index.compact_row(id.as_str(), compact);
-                    if row.is_err() {
-                        tracing::warn!(%id, "a first-stage candidate's compact form is unreadable");
-                    }
-                    row.ok()
-                })
-                .collect();
-            for row in rows {
-                index.put(row);
+/// The index a ranking on a snapshot of the catalogue searches: the snapshot's own, in
+/// memory, or the first stage in the database.
+pub enum Searcher<'a> {
+    Memory(&'a Index),
+    Database(InDatabase<'a>),
+}
+
+impl<'a> Searcher<'a> {
+    /// The index of `snapshot` for a ranking of the models with `tag`.
+    pub fn of(app: &'a App, snapshot: &'a Snapshot, tag: Option<&'a str>) -> Self {
+        if snapshot.in_memory() {
+            Searcher::Memory(&snapshot.index)
+        } else {
+            Searcher::Database(InDatabase {
+                app,
+                snapshot,
+                tag,
+                first_stage_ms: Cell::new(0.0),
+            })
+        }
+    }
+
+    /// Whether a ranking may miss a model nearer than those it returns.
+    pub fn approximate(&self) -> bool {
+        matches!(self, Searcher::Database(_))
+    }
+
+    /// The time the last search spent in the database.
+    pub fn first_stage_ms(&self) -> Option<f64> {
+        match self {
+            Searcher::Memory(_) => None,
+            Searcher::Database(d) => Some(d.first_stage_ms.get()),
+        }
+    }
+}
+
+impl Search for Searcher<'_> {
+    fn search(&self, request: &Request) -> io::Result<Ranking> {
+        match self {
+            Searcher::Memory(index) => index.search(request),
+            Searcher::Database(d) => d.search(request),
+        }
+    }
+
+    fn coverage(&self, method: Method, scope: &Scope) -> Coverage {
+        match self {
+            Searcher::Memory(index) => index.coverage(method, scope),
+            Searcher::Database(d) => d.coverage(method, scope),
+        }
+    }
+}
+
+/// The first stage in the database as an index (`--index pgvector`): a request's candidates
+/// come from the store — a whole model's, about the `k × first_stage_oversampling` nearest
+/// by their vectors, with their compact forms; a part's, the models its patches named — and
+/// an index of their own ranks them as the in-memory index ranks all models: the bounds
+/// first, then the exact distances of the few they leave, whose light field descriptors come
+/// in batches from their stored signatures. Approximate: a model the first stage misses is
+/// not ranked.
+pub struct InDatabase<'a> {
+    app: &'a App,
+    snapshot: &'a Snapshot,
+    /// The tag the first stage filters by, as the request's scope does.
+    tag: Option<&'a str>,
+    first_stage_ms: Cell<f64>,
+}
+
+impl Search for InDatabase<'_> {
+    fn search(&self, request: &Request) -> io::Result<Ranking> {
+        let (config, store) = (&self.app.config, &self.app.store);
+        let stage = store.first_stage().expect("checked at start");
+        let clock = std::time::Instant::now();
+        let candidates = match request.query {
+            Query::Model { signature, .. } => {
+                let Some(vector) = vector(signature, &config.params.similarity) else {
+                    return Err(io::Error::new(
+                        io::ErrorKind::InvalidInput,
+                        "a query without the first stage's descriptors",
+                    ));
+                };
+                let count = request
+                    .k
+                    .saturating_mul(config.first_stage_oversampling)
+                    .min(config.first_stage_max_candidates)
+                    .max(request.k);
+                stage.nearest(&vector, count, self.tag, request.scope.without)
             }
-            let ranking = index
-                .search(&Request::model(&query, Method::Hybrid, k))
-                .map_err(AppError::index)?;
-            Ok(Some(Ranked {
-                hits: ranking.hits,
-                evaluated: ranking.evaluated,
-                pruned: ranking.pruned,
-                first_stage_ms,
-            }))
-        })
-    })
-    .await
-    .map_err(|e| AppError::Internal(format!("ranking failed: {e}")))?
+            Query::Part { nearest, .. } => {
+                let ids: Vec<&str> = nearest.iter().map(|(_, id)| id.as_str()).collect();
+                stage.compacts(&ids)
+            }
+        }
+        .map_err(io::Error::other)?;
+        self.first_stage_ms.set(clock.elapsed().as_secs_f64() * 1e3);
+        let mut index = Index::away(
+            config.params.similarity.clone(),
+            light_fields(store.clone()),
+        );
+        // A compact form this release cannot read is a candidate left out, as a model
+        // without a vector is.
+        let rows: Vec<Row> = candidates
+            .par_iter()
+            .filter_map(|Candidate { id, compact }| {
+                let row = index.compact_row(id.as_str(), compact);
+                if row.is_err() {
+                    tracing::warn!(%id, "a first-stage candidate's compact form is unreadable");
+                }
+                row.ok()
+            })
+            .collect();
+        for row in rows {
+            index.put(row);
+        }
+        index.search(request)
+    }
+
+    fn coverage(&self, _: Method, scope: &Scope) -> Coverage {
+        self.snapshot.unranked(scope)
+    }
 }
 
 /// The second round of a ranking: the light field descriptors of the candidates whose bounds

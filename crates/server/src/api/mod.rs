@@ -181,7 +181,8 @@ fn load(
 ) -> Result<(Snapshot, usize, usize), StartError> {
     use rayon::prelude::*;
     let mut snapshot = Snapshot::empty(
-        config.params.similarity.clone(),
+        &config.params,
+        config.index == config::FirstStageKind::Memory,
         config.shelf_dir.clone(),
         copies,
     );
@@ -256,16 +257,17 @@ impl App {
             }
             None => None,
         };
-        // A replica of a shared store ranks stored models from copies of their signatures,
-        // so that it ranks while the database is down.
+        // A replica of a shared store that ranks in memory ranks stored models from copies of
+        // their signatures, so that it ranks while the database is down; one whose first
+        // stage is in the database cannot rank without it anyway.
         let copies = match store.shared() {
-            Some(_) => {
+            Some(_) if config.index == config::FirstStageKind::Memory => {
                 let dir = config.shelf_dir.clone().unwrap_or_else(std::env::temp_dir);
                 Some(Arc::new(
                     copies::Copies::create_in(&dir).map_err(StartError::Shelf)?,
                 ))
             }
-            None => None,
+            _ => None,
         };
         let (snapshot, stale_parameters, missing_descriptor) =
             load(&config, store.as_ref(), copies)?;
@@ -371,12 +373,15 @@ impl App {
         self.catalog.snapshot().records.len()
     }
 
+    /// The models whose rows this replica keeps in memory: every model with the in-memory
+    /// index, none with the first stage in the database.
+    pub fn rows_in_memory(&self) -> usize {
+        self.catalog.snapshot().index.len()
+    }
+
     /// Models whose stored signature is stale under the configured parameters.
     pub fn stale_count(&self) -> usize {
-        self.catalog
-            .snapshot()
-            .stale_after(None, &self.config.params)
-            .count()
+        self.catalog.snapshot().stale_count()
     }
 
     /// The progress of online re-extraction, as it changes.

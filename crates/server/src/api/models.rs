@@ -86,7 +86,7 @@ pub async fn add_model(
     let snapshot = app.catalog.snapshot();
     if let Some(record) = snapshot.records.get(&id) {
         let unchanged = record.content_hash == content_hash
-            && snapshot.index.stale(id.as_str(), &app.config.params) == Some(false)
+            && !snapshot.is_stale(&id)
             && (named.is_none() || record.fields() == wanted);
         if unchanged {
             return Ok((StatusCode::OK, Json(ModelRecord::clone(record))));

@@ -172,7 +172,7 @@ async fn run(app: Arc<App>) {
         let next = app
             .catalog
             .snapshot()
-            .stale_after(last.as_ref(), &app.config.params)
+            .stale_after(last.as_ref())
             .next()
             .cloned();
         let Some(id) = next else { break };

@@ -7,9 +7,8 @@ use axum::extract::State;
 use axum::Json;
 use serde::{Deserialize, Serialize};
 
-use super::config::FirstStageKind;
 use super::error::{AppError, ErrorBody};
-use super::first_stage;
+use super::first_stage::{self, Searcher};
 use super::models::no_model;
 use super::request::{AppPath, AppQuery, ModelPath};
 use super::upload::MeshUpload;
@@ -270,6 +269,17 @@ fn scope<'a>(
     }
 }
 
+/// A whole model's ranking as a response reports it.
+struct Ranked {
+    results: Vec<SearchHit>,
+    evaluated: usize,
+    pruned: usize,
+    left_out: usize,
+    partial: usize,
+    approximate: bool,
+    first_stage_ms: Option<f64>,
+}
+
 /// Ranked hits with what the catalogue records of each.
 fn search_hits(catalog: &Snapshot, hits: Vec<Hit>) -> Vec<SearchHit> {
     hits.into_iter()
@@ -325,7 +335,7 @@ async fn search_part(
     let verified = app.config.params.similarity.partial.verified;
     // On the extraction pool, not the rankers: its registrations are as heavy as an
     // extraction, and are bounded by the same queue and time limit.
-    let (query, mut results, ranking) = app
+    let (query, mut results, ranking, approximate) = app
         .pool
         .run(move || {
             let catalog = worker.catalog.snapshot();
@@ -335,7 +345,8 @@ async fn search_part(
                 app: &worker,
                 catalog: &catalog,
             };
-            let ranking = part_search::search(&query, &catalog.index, scope, &library, verified, k)
+            let index = Searcher::of(&worker, &catalog, tag.as_deref());
+            let ranking = part_search::search(&query, &index, scope, &library, verified, k)
                 .map_err(|e| match e {
                     SearchError::Index(e) => AppError::index(e),
                     SearchError::Library(e) => e,
@@ -352,7 +363,8 @@ async fn search_part(
                     result.placement = hit.registration.map(|r| r.placement.to_cols_array());
                 }
             }
-            Ok::<_, AppError>((query, results, ranking))
+            let approximate = index.approximate();
+            Ok::<_, AppError>((query, results, ranking, approximate))
         })
         .await??;
     for (i, hit) in results.iter_mut().enumerate() {
@@ -370,7 +382,7 @@ async fn search_part(
         mode: SearchMode::Partial,
         k,
         results,
-        approximate: false,
+        approximate,
         evaluated: ranking.evaluated,
         pruned: ranking.pruned,
         left_out: 0,
@@ -504,50 +516,51 @@ async fn rank(
             .collect(),
     });
     let explained = explain_hits.then(|| (query.clone(), params.clone()));
-    let in_database = app.config.index == FirstStageKind::Pgvector
-        && method == Method::Hybrid
-        && params == app.config.params.similarity;
-    let ranked = if in_database {
-        let without = exclude.as_ref().map(ModelId::to_string);
-        first_stage::rank(app, query.clone(), k, tag.clone(), without).await?
-    } else {
-        None
-    };
-    let approximate = ranked.is_some();
-    let mut first_stage_ms = None;
-    let results = if let Some(ranked) = ranked {
-        let catalog = app.catalog.snapshot();
-        let tagged = tagged(&catalog, &tag);
-        let scope = scope(&tag, &tagged, exclude.as_ref().map(ModelId::as_str));
-        let Coverage { left_out, partial } = catalog.index.coverage(method, &scope);
-        let results = search_hits(&catalog, ranked.hits);
-        first_stage_ms = Some(ranked.first_stage_ms);
-        (results, ranked.evaluated, ranked.pruned, left_out, partial)
-    } else {
-        app.read_catalog(move |catalog| {
+    let snapshot = app.catalog.snapshot();
+    if !snapshot.in_memory() && !first_stage::ranks(&query) {
+        return Err(AppError::Conflict(
+            "this model's signature lacks the descriptors the first stage in the database ranks \
+             by (it was made by an earlier release): re-extract it (POST /v1/reindex)"
+                .to_string(),
+        ));
+    }
+    drop(snapshot);
+    let worker = app.0.clone();
+    let results = app
+        .read_catalog(move |catalog| {
             let tagged = tagged(catalog, &tag);
             let scope = scope(&tag, &tagged, exclude.as_ref().map(ModelId::as_str));
-            let ranking = catalog.index.search(
+            let index = Searcher::of(&worker, catalog, tag.as_deref());
+            let ranking = index.search(
                 &Request::model(&query, method, k)
                     .params(&params)
                     .scope(scope),
             )?;
-            let Coverage { left_out, partial } = catalog.index.coverage(method, &scope);
+            let Coverage { left_out, partial } = index.coverage(method, &scope);
             let results = search_hits(catalog, ranking.hits);
-            Ok((
+            Ok(Ranked {
                 results,
-                ranking.evaluated,
-                ranking.pruned,
+                evaluated: ranking.evaluated,
+                pruned: ranking.pruned,
                 left_out,
                 partial,
-            ))
+                approximate: index.approximate(),
+                first_stage_ms: index.first_stage_ms(),
+            })
         })
         .await?
-        .map_err(AppError::index)?
-    };
+        .map_err(AppError::index)?;
     let search_seconds = search_clock.elapsed().as_secs_f64();
     app.metrics.search_seconds.observe(search_seconds);
-    let (mut results, evaluated, pruned, left_out, partial) = results;
+    let Ranked {
+        mut results,
+        evaluated,
+        pruned,
+        left_out,
+        partial,
+        approximate,
+        first_stage_ms,
+    } = results;
     if let Some((query, params)) = explained {
         // What an explanation shows (feature positions, every method's distance) is read
         // from the store: the index keeps only what ranking compares. A model deleted since

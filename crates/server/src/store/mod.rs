@@ -197,6 +197,10 @@ pub trait FirstStage: Send + Sync {
         without: Option<&str>,
     ) -> StoreResult<Vec<Candidate>>;
 
+    /// The compact forms of the models `ids` that have one, in one round trip: the
+    /// candidates a caller chose itself (a partial search's, by their patches).
+    fn compacts(&self, ids: &[&str]) -> StoreResult<Vec<Candidate>>;
+
     /// The stored signatures of the models `ids` that exist, in one round trip: the second
     /// round of a ranking, for the light field descriptors of the candidates the compact
     /// forms' bounds leave.

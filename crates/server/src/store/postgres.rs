@@ -1205,6 +1205,19 @@ async fn put_vector(
     Ok(())
 }
 
+/// The candidates in `rows` of (id, compact form), those without a compact form left out.
+fn candidates(rows: &[tokio_postgres::Row]) -> StoreResult<Vec<Candidate>> {
+    rows.iter()
+        .filter_map(|row| Some((row.get(0), row.get::<_, Option<Vec<u8>>>(1)?)))
+        .map(|(id, compact)| {
+            Ok(Candidate {
+                id: parse_id(id)?,
+                compact,
+            })
+        })
+        .collect()
+}
+
 impl FirstStage for PostgresStore {
     fn nearest(
         &self,
@@ -1239,18 +1252,23 @@ impl FirstStage for PostgresStore {
                     .map_err(backend)?;
                 // A model without a vector has no compact form either; a scan past the
                 // index's rows may return it last.
-                let candidates = rows
-                    .iter()
-                    .filter_map(|row| Some((row.get(0), row.get::<_, Option<Vec<u8>>>(1)?)))
-                    .map(|(id, compact)| {
-                        Ok(Candidate {
-                            id: parse_id(id)?,
-                            compact,
-                        })
-                    })
-                    .collect::<StoreResult<_>>()?;
-                Ok((candidates, None))
+                Ok((candidates(&rows)?, None))
             })
+        })
+    }
+
+    fn compacts(&self, ids: &[&str]) -> StoreResult<Vec<Candidate>> {
+        let ids: Vec<String> = ids.iter().map(|id| id.to_string()).collect();
+        self.run(|pool| async move {
+            let client = pool.get().await.map_err(pool_error)?;
+            let rows = client
+                .query(
+                    "SELECT id, compact FROM model_vectors WHERE id = ANY($1)",
+                    &[&ids],
+                )
+                .await
+                .map_err(backend)?;
+            candidates(&rows)
         })
     }
 
