@@ -8,12 +8,15 @@ mod corpus;
 #[path = "../tests/it/synthetic.rs"]
 mod synthetic;
 
+use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::Arc;
 use std::time::Instant;
 
 use rand::SeedableRng;
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
+use salient_core::descriptor::lfd::LightFieldDescriptor;
+use salient_core::rank::vectors::{self, Layout};
 use salient_core::rank::{compact, Fetch, Index, Method, Request, Scope, Search};
 use salient_core::similarity::compare;
 use salient_core::{Params, Signature};
@@ -146,6 +149,89 @@ fn candidate_rows(models: &[(usize, Signature)]) {
     );
 }
 
+/// What a replica with its first stage in the database (#40) spends on one ranking, the
+/// database left out: the `SALIENT_RANK_CANDIDATES` (1 000) models nearest each held-out query
+/// by the first stage's vectors (exactly, as a perfect HNSW scan would give them) among
+/// `size` perturbed copies, their rows made from their compact forms, then ranked with their
+/// light field descriptors unpacked as the server's second round reads them. One thread, as a
+/// ranking gets on two cores with two at once.
+fn first_stage_rankings(
+    sources: &[(usize, Signature)],
+    held_out: &[(usize, Signature)],
+    size: usize,
+) {
+    let params = Params::default().similarity;
+    let candidates: usize = std::env::var("SALIENT_RANK_CANDIDATES")
+        .ok()
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(1000);
+    let vector =
+        |s: &Signature| vectors::rows(s, &params, Layout::Pooled).and_then(|mut v| v.pop());
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
+    let (mut kept, mut stored) = (Vec::with_capacity(size), Vec::with_capacity(size));
+    for i in 0..size {
+        let copy = corpus::perturbed(&sources[i % sources.len()].1, &mut rng, 0.15);
+        let Some(v) = vector(&copy) else { continue };
+        kept.push((format!("m{i:06}"), v, compact::of(&copy)));
+        stored.push(copy.lfd.as_ref().expect("a vector needs one").packed());
+    }
+    let stored = Arc::new(stored);
+    // Light fields read, over every query.
+    let read = Arc::new(AtomicUsize::new(0));
+    let fetch: Fetch = {
+        let (stored, read) = (stored.clone(), read.clone());
+        Arc::new(move |ids: &[Arc<str>]| {
+            read.fetch_add(ids.len(), Ordering::Relaxed);
+            Ok(ids
+                .iter()
+                .filter_map(|id| {
+                    let i: usize = id[1..].parse().ok()?;
+                    Some((id.clone(), LightFieldDescriptor::unpacked(&stored[i])))
+                })
+                .collect())
+        })
+    };
+    let one_thread = rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .build()
+        .expect("a pool");
+    let (mut rows_ms, mut rank_ms, mut exact) = (Vec::new(), Vec::new(), 0);
+    for (_, query) in held_out {
+        let Some(q) = vector(query) else { continue };
+        let mut order: Vec<(f32, usize)> = kept
+            .iter()
+            .enumerate()
+            .map(|(i, (_, v, _))| (v.iter().zip(&q).map(|(a, b)| (a - b).abs()).sum(), i))
+            .collect();
+        order.select_nth_unstable_by(candidates, |a, b| a.0.total_cmp(&b.0));
+        let clock = Instant::now();
+        let mut away = Index::away(params.clone(), fetch.clone());
+        for &(_, i) in &order[..candidates] {
+            let (id, _, form) = &kept[i];
+            away.put(away.compact_row(id.as_str(), form).expect("readable"));
+        }
+        rows_ms.push(clock.elapsed().as_secs_f64() * 1e3);
+        let clock = Instant::now();
+        let ranking = one_thread
+            .install(|| away.search(&Request::model(query, Method::Hybrid, 10)))
+            .expect("ranks");
+        rank_ms.push(clock.elapsed().as_secs_f64() * 1e3);
+        exact += ranking.evaluated;
+    }
+    eprintln!(
+        "first stage's {candidates} candidates of {size}: rows p50 {:.1} ms, ranking p50 {:.1} / \
+         p99 {:.1} ms, {} exact distances a query",
+        percentile(&mut rows_ms, 0.5),
+        percentile(&mut rank_ms, 0.5),
+        percentile(&mut rank_ms, 0.99),
+        exact / rank_ms.len().max(1)
+    );
+    eprintln!(
+        "fetched {} a query",
+        FETCHED.load(std::sync::atomic::Ordering::Relaxed) / rank_ms.len().max(1)
+    );
+}
+
 /// Ranking cost on **real signatures**: the load bench's base store (both shared collections
 /// less every fifth model, extracted once by `cargo bench --bench load`) copied with every
 /// descriptor perturbed into `SALIENT_RANK_MODELS` entries (100 000), ranked in process on one
@@ -174,6 +260,11 @@ fn real_signatures(_: &mut Criterion) {
         .enumerate()
         .partition(|(i, _)| i % 5 == 4);
     candidate_rows(&sources);
+    // `SALIENT_RANK_FIRST_STAGE=1`: the replica's side of a first stage in the database alone.
+    if std::env::var("SALIENT_RANK_FIRST_STAGE").is_ok() {
+        first_stage_rankings(&sources, &held_out, size);
+        return;
+    }
     let before = resident_mib();
     let clock = Instant::now();
     let mut index = Index::new(Params::default().similarity);

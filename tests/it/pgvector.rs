@@ -144,13 +144,14 @@ postgres_only! {
             tokio::spawn(connection);
             client
         };
-        // The one model's row: the weights it was made for, and whether it has a vector and
-        // a compact form.
+        // The one model's row: the weights it was made for, and whether it has a vector, a
+        // compact form and a light field.
         let kept = || async {
             let row = client()
                 .await
                 .query_one(
-                    "SELECT made_for, v IS NOT NULL AND compact IS NOT NULL FROM model_vectors",
+                    "SELECT made_for, v IS NOT NULL AND compact IS NOT NULL AND light_field IS NOT NULL \
+                     FROM model_vectors",
                     &[],
                 )
                 .await
@@ -159,8 +160,8 @@ postgres_only! {
         };
         let mut params = salient_core::Params::default();
         assert_eq!(kept().await, (first_stage::spec(&params).key, true));
-        // The table as the first release made it: no compact forms, its key without the
-        // form's version. Made again when a replica opens it.
+        // The table as the first release made it: no compact forms nor light fields, its key
+        // without the form's version. Made again when a replica opens it.
         let first_release = serde_json::to_string(&(
             params.similarity.ecc_weight,
             &params.similarity.hybrid,
@@ -169,7 +170,7 @@ postgres_only! {
         client()
             .await
             .batch_execute(&format!(
-                "ALTER TABLE model_vectors DROP COLUMN compact; \
+                "ALTER TABLE model_vectors DROP COLUMN compact, DROP COLUMN light_field; \
                  UPDATE model_vectors SET made_for = '{first_release}'"
             ))
             .await

@@ -167,12 +167,14 @@ pub struct VectorSpec {
     pub vector: VectorOf,
 }
 
-/// What a first stage keeps of a model: its vector, and what the exact ranking of the
-/// candidates reads of it but the light field descriptor
-/// ([`salient_core::rank::compact`]), returned with it.
+/// What a first stage keeps of a model: its vector; what the exact ranking of the candidates
+/// reads of it but the light field descriptor ([`salient_core::rank::compact`]), returned with
+/// it; and that descriptor packed as the in-memory index shelves it, which the ranking reads
+/// for the candidates its bounds leave.
 pub struct Kept {
     pub vector: Vec<f32>,
     pub compact: Vec<u8>,
+    pub light_field: Vec<u8>,
 }
 
 /// [`Kept`] from a stored signature's bytes ([`VectorSpec`]).
@@ -201,10 +203,10 @@ pub trait FirstStage: Send + Sync {
     /// candidates a caller chose itself (a partial search's, by their patches).
     fn compacts(&self, ids: &[&str]) -> StoreResult<Vec<Candidate>>;
 
-    /// The stored signatures of the models `ids` that exist, in one round trip: the second
-    /// round of a ranking, for the light field descriptors of the candidates the compact
-    /// forms' bounds leave.
-    fn signatures(&self, ids: &[&str]) -> StoreResult<Vec<(ModelId, Vec<u8>)>>;
+    /// The packed light field descriptors ([`Kept::light_field`]) of the models `ids` that
+    /// have one, in one round trip: the second round of a ranking, for the candidates the
+    /// compact forms' bounds leave.
+    fn light_fields(&self, ids: &[&str]) -> StoreResult<Vec<(ModelId, Vec<u8>)>>;
 }
 
 /// The storage operations the service uses.

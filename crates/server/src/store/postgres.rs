@@ -32,8 +32,8 @@ use tokio_postgres::tls::{MakeTlsConnect, TlsConnect};
 use tokio_postgres::{AsyncMessage, NoTls, Socket, Transaction};
 
 use super::{
-    blob_hashes, upload_files, Candidate, Change, Changes, Derived, FirstStage, Loaded, Shared,
-    StoreError, StoreResult, VectorSpec,
+    blob_hashes, upload_files, Candidate, Change, Changes, Derived, FirstStage, Kept, Loaded,
+    Shared, StoreError, StoreResult, VectorSpec,
 };
 use crate::model::{ModelId, ModelRecord, Upload};
 
@@ -1005,8 +1005,8 @@ impl Shared for PostgresStore {
 }
 
 /// A model's first-stage row as a write keeps it: the key of the parameters it was made for,
-/// and its vector and compact form (`None` for a signature without them).
-type KeptVector = Arc<(String, Option<(pgvector::Vector, Vec<u8>)>)>;
+/// and its vector, compact form and packed light field (`None` for a signature without them).
+type KeptVector = Arc<(String, Option<(pgvector::Vector, Kept)>)>;
 
 /// The name of the lock held while a replica makes the vectors the first stage lacks.
 const FILLING: &str = "first stage vectors";
@@ -1038,7 +1038,7 @@ impl PostgresStore {
     /// The vector `signature` is kept with, when the store keeps a first stage.
     fn vector_of(&self, signature: &[u8]) -> Option<KeptVector> {
         let spec = self.vectors.as_ref()?;
-        let kept = (spec.vector)(signature).map(|k| (pgvector::Vector::from(k.vector), k.compact));
+        let kept = (spec.vector)(signature).map(|k| (pgvector::Vector::from(k.vector.clone()), k));
         Some(Arc::new((spec.key.clone(), kept)))
     }
 
@@ -1134,12 +1134,14 @@ async fn prepare_vectors(pool: &Pool, dimensions: usize) -> StoreResult<()> {
                 .await
                 .map_err(backend)?;
         }
-        // One row per model (`v` and `compact` NULL for a model without them); its tags
-        // beside it, for a filtered scan of the index to test without a join. `compact` came
-        // after the first release of the table; the rows made before it are made again (their
-        // key is not today's: `spec`). Kept in the row, not out of line (`MAIN`: ~2.2 KB,
-        // past TOAST's 2 KB), so that a ranking's thousand candidates are a thousand reads,
-        // not two thousand.
+        // One row per model (`v`, `compact` and `light_field` NULL for a model without
+        // them); its tags beside it, for a filtered scan of the index to test without a join.
+        // `compact` and `light_field` came after the first release of the table; the rows
+        // made before them are made again (their key is not today's: `spec`). The compact
+        // form is kept in the row, not out of line (`MAIN`: ~1.9 KB, near TOAST's 2 KB), so
+        // that a ranking's thousand candidates are a thousand reads, not two thousand; the
+        // light field (4.5 KB, incompressible) out of line (`EXTERNAL`), read only for the
+        // candidates the bounds leave, and not by the candidates' scan.
         client
             .batch_execute(&format!(
                 "CREATE TABLE IF NOT EXISTS model_vectors ( \
@@ -1148,7 +1150,9 @@ async fn prepare_vectors(pool: &Pool, dimensions: usize) -> StoreResult<()> {
                    tags text[] NOT NULL, \
                    v vector({dimensions})); \
                  ALTER TABLE model_vectors ADD COLUMN IF NOT EXISTS compact bytea; \
-                 ALTER TABLE model_vectors ALTER COLUMN compact SET STORAGE MAIN"
+                 ALTER TABLE model_vectors ALTER COLUMN compact SET STORAGE MAIN; \
+                 ALTER TABLE model_vectors ADD COLUMN IF NOT EXISTS light_field bytea; \
+                 ALTER TABLE model_vectors ALTER COLUMN light_field SET STORAGE EXTERNAL"
             ))
             .await
             .map_err(backend)
@@ -1193,12 +1197,21 @@ async fn put_vector(
     kept: &KeptVector,
 ) -> StoreResult<()> {
     let (key, kept) = &**kept;
-    let (vector, compact) = kept.as_ref().map(|(v, c)| (v, c)).unzip();
+    let (vector, kept) = kept.as_ref().map(|(v, k)| (v, k)).unzip();
+    let (compact, light_field) = kept.map(|k| (&k.compact, &k.light_field)).unzip();
     tx.execute(
-        "INSERT INTO model_vectors (id, made_for, tags, v, compact) VALUES ($1, $2, $3, $4, $5) \
+        "INSERT INTO model_vectors (id, made_for, tags, v, compact, light_field) \
+         VALUES ($1, $2, $3, $4, $5, $6) \
          ON CONFLICT (id) DO UPDATE SET made_for = EXCLUDED.made_for, tags = EXCLUDED.tags, \
-         v = EXCLUDED.v, compact = EXCLUDED.compact",
-        &[&record.id.as_str(), key, &record.tags, &vector, &compact],
+         v = EXCLUDED.v, compact = EXCLUDED.compact, light_field = EXCLUDED.light_field",
+        &[
+            &record.id.as_str(),
+            key,
+            &record.tags,
+            &vector,
+            &compact,
+            &light_field,
+        ],
     )
     .await
     .map_err(backend)?;
@@ -1272,13 +1285,14 @@ impl FirstStage for PostgresStore {
         })
     }
 
-    fn signatures(&self, ids: &[&str]) -> StoreResult<Vec<(ModelId, Vec<u8>)>> {
+    fn light_fields(&self, ids: &[&str]) -> StoreResult<Vec<(ModelId, Vec<u8>)>> {
         let ids: Vec<String> = ids.iter().map(|id| id.to_string()).collect();
         self.run(|pool| async move {
             let client = pool.get().await.map_err(pool_error)?;
             let rows = client
                 .query(
-                    "SELECT id, signature FROM models WHERE id = ANY($1)",
+                    "SELECT id, light_field FROM model_vectors \
+                     WHERE id = ANY($1) AND light_field IS NOT NULL",
                     &[&ids],
                 )
                 .await
