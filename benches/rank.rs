@@ -218,17 +218,15 @@ fn first_stage_rankings(
         rank_ms.push(clock.elapsed().as_secs_f64() * 1e3);
         exact += ranking.evaluated;
     }
+    let queries = rank_ms.len().max(1);
     eprintln!(
         "first stage's {candidates} candidates of {size}: rows p50 {:.1} ms, ranking p50 {:.1} / \
-         p99 {:.1} ms, {} exact distances a query",
+         p99 {:.1} ms; a query reads {} light fields and solves {} exact distances",
         percentile(&mut rows_ms, 0.5),
         percentile(&mut rank_ms, 0.5),
         percentile(&mut rank_ms, 0.99),
-        exact / rank_ms.len().max(1)
-    );
-    eprintln!(
-        "fetched {} a query",
-        FETCHED.load(std::sync::atomic::Ordering::Relaxed) / rank_ms.len().max(1)
+        read.load(Ordering::Relaxed) / queries,
+        exact / queries
     );
 }
 
