@@ -141,6 +141,7 @@ pub async fn check_duplicates(
     responses(
         (status = 200, description = "A page of groups, in the order of their first ids", body = GroupPage),
         (status = 400, description = "Bad query", body = ErrorBody),
+        (status = 409, description = "This replica ranks with its first stage in the database (`--index pgvector`), which does not compare every model with every other: ask a replica with the in-memory index", body = ErrorBody),
         (status = 503, description = "Verification queue full or time limit reached", body = ErrorBody)
     )
 )]

@@ -127,11 +127,11 @@ impl Search for Searcher<'_> {
 
 /// The first stage in the database as an index (`--index pgvector`): a request's candidates
 /// come from the store — a whole model's, about the `k × first_stage_oversampling` nearest
-/// by their vectors, with their compact forms; a part's, the models its patches named — and
-/// an index of their own ranks them as the in-memory index ranks all models: the bounds
-/// first, then the exact distances of the few they leave, whose light field descriptors come
-/// in batches from their stored signatures. Approximate: a model the first stage misses is
-/// not ranked.
+/// by their vectors, with their compact forms; a part's, the models its stored patches name
+/// (none while the patches are still to be made) — and an index of their own ranks them as
+/// the in-memory index ranks all models: the bounds first, then the exact distances of those
+/// they leave, whose light fields come packed in a second round trip. Approximate: a model
+/// the first stage misses is not ranked.
 pub struct InDatabase<'a> {
     app: &'a App,
     snapshot: &'a Snapshot,

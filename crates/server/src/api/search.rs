@@ -655,7 +655,7 @@ pub async fn search(
         (status = 200, description = "Ranked models", body = SearchResponse),
         (status = 400, description = "Bad id or query", body = ErrorBody),
         (status = 404, description = "No such model", body = ErrorBody),
-        (status = 409, description = "The model's stored signature lacks the method's descriptor; it is being re-extracted", body = ErrorBody)
+        (status = 409, description = "The model's stored signature lacks the method's descriptor, or (with the first stage in the database) one its vectors are made of; it is being re-extracted", body = ErrorBody)
     )
 )]
 pub async fn similar(
