@@ -286,6 +286,7 @@ impl PostgresStore {
 /// A statement's parameter, owned so that it can travel to the store's runtime.
 enum Param {
     Text(String),
+    Texts(Vec<String>),
     Bytes(Vec<u8>),
     Int(i64),
 }
@@ -294,6 +295,7 @@ impl Param {
     fn as_sql(&self) -> &(dyn tokio_postgres::types::ToSql + Sync) {
         match self {
             Param::Text(s) => s,
+            Param::Texts(s) => s,
             Param::Bytes(b) => b,
             Param::Int(i) => i,
         }
@@ -1038,7 +1040,8 @@ impl PostgresStore {
     /// The vector `signature` is kept with, when the store keeps a first stage.
     fn vector_of(&self, signature: &[u8]) -> Option<KeptVector> {
         let spec = self.vectors.as_ref()?;
-        let kept = (spec.vector)(signature).map(|k| (pgvector::Vector::from(k.vector.clone()), k));
+        let kept = (spec.vector)(signature)
+            .map(|mut k| (pgvector::Vector::from(std::mem::take(&mut k.vector)), k));
         Some(Arc::new((spec.key.clone(), kept)))
     }
 
@@ -1218,6 +1221,11 @@ async fn put_vector(
     Ok(())
 }
 
+/// `ids` as one text array parameter.
+fn texts(ids: &[&str]) -> Param {
+    Param::Texts(ids.iter().map(|id| id.to_string()).collect())
+}
+
 /// The candidates in `rows` of (id, compact form), those without a compact form left out.
 fn candidates(rows: &[tokio_postgres::Row]) -> StoreResult<Vec<Candidate>> {
     rows.iter()
@@ -1271,36 +1279,22 @@ impl FirstStage for PostgresStore {
     }
 
     fn compacts(&self, ids: &[&str]) -> StoreResult<Vec<Candidate>> {
-        let ids: Vec<String> = ids.iter().map(|id| id.to_string()).collect();
-        self.run(|pool| async move {
-            let client = pool.get().await.map_err(pool_error)?;
-            let rows = client
-                .query(
-                    "SELECT id, compact FROM model_vectors WHERE id = ANY($1)",
-                    &[&ids],
-                )
-                .await
-                .map_err(backend)?;
-            candidates(&rows)
-        })
+        let rows = self.query(
+            "SELECT id, compact FROM model_vectors WHERE id = ANY($1)",
+            vec![texts(ids)],
+        )?;
+        candidates(&rows)
     }
 
     fn light_fields(&self, ids: &[&str]) -> StoreResult<Vec<(ModelId, Vec<u8>)>> {
-        let ids: Vec<String> = ids.iter().map(|id| id.to_string()).collect();
-        self.run(|pool| async move {
-            let client = pool.get().await.map_err(pool_error)?;
-            let rows = client
-                .query(
-                    "SELECT id, light_field FROM model_vectors \
-                     WHERE id = ANY($1) AND light_field IS NOT NULL",
-                    &[&ids],
-                )
-                .await
-                .map_err(backend)?;
-            rows.iter()
-                .map(|row| Ok((parse_id(row.get(0))?, row.get(1))))
-                .collect()
-        })
+        let rows = self.query(
+            "SELECT id, light_field FROM model_vectors \
+             WHERE id = ANY($1) AND light_field IS NOT NULL",
+            vec![texts(ids)],
+        )?;
+        rows.iter()
+            .map(|row| Ok((parse_id(row.get(0))?, row.get(1))))
+            .collect()
     }
 }
 
