@@ -12,6 +12,8 @@
 //! which no bound orders: ~1000 candidates for 0.98); and the base itself, where no model has a
 //! near copy. `SALIENT_FIRST_STAGE_DUMP=DIR` also writes the pooled vectors
 //! and each query's exact top 10 as JSON lines, to try pgvector's indexes on them.
+//! `SALIENT_FIRST_STAGE_QUERIES=tuning` asks with every fourth model of the base instead, against
+//! copies of the others only: the protocol to choose vectors by.
 
 #[path = "support/corpus.rs"]
 mod corpus;
@@ -244,8 +246,21 @@ fn main() {
     let size: usize = std::env::var("SALIENT_FIRST_STAGE_SIZE").map_or(100_000, |s| {
         s.parse().expect("SALIENT_FIRST_STAGE_SIZE: a count")
     });
-    eprintln!("extracting the held-out queries…");
-    let queries = queries(&params);
+    // `tuning`: every fourth model of the base as a query, against copies of the others, to
+    // choose among vectors without looking at the held-out models.
+    let (queries, base) = match std::env::var("SALIENT_FIRST_STAGE_QUERIES").as_deref() {
+        Ok("tuning") => {
+            let (queries, rest): (Vec<_>, Vec<_>) =
+                base.into_iter().enumerate().partition(|(i, _)| i % 4 == 0);
+            let queries = queries.into_iter().map(|(_, (_, s))| s).collect();
+            (queries, rest.into_iter().map(|(_, model)| model).collect())
+        }
+        Ok("held-out") | Err(_) => {
+            eprintln!("extracting the held-out queries…");
+            (queries(&params), base)
+        }
+        Ok(other) => panic!("SALIENT_FIRST_STAGE_QUERIES: held-out or tuning, not {other}"),
+    };
     let mut rng = ChaCha8Rng::seed_from_u64(0);
     let copies: Vec<(String, Signature)> = (0..size)
         .map(|i| {

@@ -279,18 +279,20 @@ fn base_store(sources: &Sources) -> PathBuf {
     store
 }
 
-/// Adds models `from..to` to `store`, perturbed copies of the models of `base`.
-fn fill(store: &dyn Store, base: &Path, from: usize, to: usize) {
+/// Adds models `from..to` to `store`, perturbed copies of the models of `base`, each its own
+/// random stream (the same copies at any thread count), written by as many threads as cores.
+fn fill(store: &(dyn Store + Sync), base: &Path, from: usize, to: usize) {
+    use rayon::prelude::*;
     let models = corpus::load_base(base);
-    let mut rng = ChaCha8Rng::seed_from_u64(from as u64);
-    for i in from..to {
+    (from..to).into_par_iter().for_each(|i| {
+        let mut rng = ChaCha8Rng::seed_from_u64(i as u64);
         let (record, signature, upload) = &models[i % models.len()];
         let mut record = record.clone();
         record.id = salient_server::model::ModelId::parse(&format!("m{i:06}")).expect("a valid id");
         record.tags = vec![format!("t{}", i % 10)];
         let bytes = corpus::perturbed(signature, &mut rng, 0.15).to_bytes();
         store.put(&record, &bytes, upload).expect("stores");
-    }
+    });
 }
 
 /// Latencies of requests sent by `CLIENTS` clients in a closed loop, until `budget` has passed

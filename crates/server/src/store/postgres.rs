@@ -26,6 +26,7 @@ use std::time::Duration;
 
 use bytes::{Bytes, BytesMut};
 use deadpool_postgres::{Manager, ManagerConfig, Pool, RecyclingMethod, Runtime, Timeouts};
+use rayon::prelude::*;
 use tokio_postgres::config::{Host, SslMode};
 use tokio_postgres::error::SqlState;
 use tokio_postgres::tls::{MakeTlsConnect, TlsConnect};
@@ -1074,8 +1075,9 @@ impl PostgresStore {
                 break;
             };
             after = last.get::<_, &str>(0).to_string();
+            // Decoding a signature and making its row is most of a start that makes them.
             let page: Vec<(ModelRecord, KeptVector)> = rows
-                .iter()
+                .par_iter()
                 .map(|row| {
                     let id: &str = row.get(0);
                     let record = decode_record(id, row.get(2))?;
@@ -1169,21 +1171,29 @@ async fn prepare_vectors(pool: &Pool, dimensions: usize) -> StoreResult<()> {
 }
 
 /// Builds the HNSW index of the vectors for the L1 distance if it is missing: a graph built
-/// in memory when it fits in `maintenance_work_mem` (~1 KB a model), ten times faster than
-/// one that does not. Denser than pgvector's defaults (m 16, ef_construction 64), whose
+/// in memory when it fits in `maintenance_work_mem`, ten times faster than one that does not,
+/// so the build asks for [`GRAPH_BYTES_PER_MODEL`] a model (at least 1 GB, at most
+/// [`GRAPH_MEMORY_CAP`]) for itself alone. Denser than pgvector's defaults (m 16, ef_construction 64), whose
 /// graph keeps at most 0.95 of the exact top 10 within reach at 100 000 models whose near
 /// copies crowd together, however far the scan goes; m 32 and ef_construction 256 reach
 /// 0.98 at 500 candidates (`benches/first_stage.rs`'s dump, 43 s to build on two cores).
 async fn index_vectors(pool: &Pool) -> StoreResult<()> {
     let client = pool.get().await.map_err(pool_error)?;
     let clock = std::time::Instant::now();
+    let rows: i64 = client
+        .query_one("SELECT count(*) FROM model_vectors", &[])
+        .await
+        .map_err(backend)?
+        .get(0);
+    let memory = (rows.max(0) as u64 * GRAPH_BYTES_PER_MODEL).clamp(1 << 30, GRAPH_MEMORY_CAP);
     client
-        .batch_execute(
-            "SET maintenance_work_mem = '1GB'; \
+        .batch_execute(&format!(
+            "SET maintenance_work_mem = '{}kB'; \
              CREATE INDEX IF NOT EXISTS model_vectors_l1 ON model_vectors \
                USING hnsw (v vector_l1_ops) WITH (m = 32, ef_construction = 256); \
              RESET maintenance_work_mem",
-        )
+            memory >> 10
+        ))
         .await
         .map_err(backend)?;
     tracing::debug!(
@@ -1192,6 +1202,14 @@ async fn index_vectors(pool: &Pool) -> StoreResult<()> {
     );
     Ok(())
 }
+
+/// What the graph of one model's vector takes while built: its 247 floats and m 32's
+/// neighbour lists, with room (pgvector's own estimate is ~1.3 KB).
+const GRAPH_BYTES_PER_MODEL: u64 = 2048;
+
+/// The most memory a graph's build asks of the database server: a build that does not fit
+/// goes on, on disk, only slower.
+const GRAPH_MEMORY_CAP: u64 = 8 << 30;
 
 /// Keeps `record`'s vector (and tags) in the first stage's table.
 async fn put_vector(
