@@ -251,7 +251,7 @@ fn measure(x: &Shape, y: &Shape, p: &DuplicateParams) -> Measured {
     let alignment = x.align(y, Reach::new(p, spacing), |_| true);
     let geometry = x.geometry_deviation(y, p.geometry);
     Measured {
-        verdict: judge(geometry, |_, _| alignment, spacing, p),
+        verdict: judge((geometry, x.split_of(y)), |_, _| alignment, spacing, p),
         identical: geometry.is_some(),
         deviation: alignment.rotated,
         spacing,

@@ -10,9 +10,12 @@
 //! cannot tell "the same class" from "the same shape". Another pose of an articulated model
 //! moves a limb farther than [`DuplicateParams::largest`] allows, so it is another asset; a
 //! morph of one mesh (the same faces, vertices moved) moves the vertices of a remeshed copy
-//! off the other surface ([`DuplicateParams::vertices`]).
+//! off the other surface ([`DuplicateParams::vertices_per_edge`]). A smoothing subdivision
+//! (Loop's) moves a surface less than a simplification does, and is told by its mesh instead
+//! (`subdivision`).
 
 mod shape;
+mod subdivision;
 
 use std::collections::{BTreeMap, HashMap};
 use std::fmt;
@@ -95,7 +98,7 @@ impl Verdict {
 /// Whether `a` and `b` (two different files) are one asset, and on what evidence.
 pub fn verify(a: &Shape, b: &Shape, params: &DuplicateParams) -> Option<Verdict> {
     judge(
-        a.geometry_deviation(b, params.geometry),
+        (a.geometry_deviation(b, params.geometry), a.split_of(b)),
         |reach, surfaces_pass| a.align(b, reach, surfaces_pass),
         a.coarser(b),
         params,
@@ -103,12 +106,13 @@ pub fn verify(a: &Shape, b: &Shape, params: &DuplicateParams) -> Option<Verdict>
 }
 
 /// The verdict on a geometry deviation within `params.geometry` ([`Shape::geometry_deviation`];
-/// `None` when beyond) and, when that does not decide, an alignment ([`Shape::align`], the
+/// `None` when beyond) and whether either mesh is the other's triangles split in four
+/// ([`Shape::split_of`]), and, when these do not decide, an alignment ([`Shape::align`], the
 /// costly part, made only then and told how far a sample may lie and which surface
 /// statistics pass), `spacing` the coarser mesh's typical triangle size ([`Shape::coarser`]).
 /// The score is 1 less the largest share of its limit a statistic used.
 pub fn judge(
-    deviation: Option<f64>,
+    (deviation, split): (Option<f64>, bool),
     alignment: impl FnOnce(Reach, &dyn Fn(&Deviation) -> bool) -> Alignment,
     spacing: f64,
     params: &DuplicateParams,
@@ -142,6 +146,11 @@ pub fn judge(
         }
     };
     let verdict = |evidence, d: Deviation| {
+        // A split that moved the surface is a smoothing subdivision: another asset, however
+        // little it moved (`subdivision`).
+        if split && d.vertices.max > params.split_vertices_per_edge {
+            return None;
+        }
         let used = surfaces(&d).max(d.vertices.p90 / params.vertices_per_edge);
         (used <= 1.0).then_some(Verdict {
             evidence,

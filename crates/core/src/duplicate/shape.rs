@@ -273,6 +273,21 @@ impl Shape {
         self.surface.vertices().len()
     }
 
+    /// Whether either mesh is the other's triangles each split in four, by their connectivity
+    /// alone ([`super::subdivision`]).
+    pub fn split_of(&self, other: &Shape) -> bool {
+        let triangles = |s: &Shape| s.surface.triangles().len();
+        let (fine, coarse) = if triangles(self) > triangles(other) {
+            (self, other)
+        } else {
+            (other, self)
+        };
+        super::subdivision::is_split(
+            fine.surface.triangles(),
+            (coarse.vertices(), triangles(coarse)),
+        )
+    }
+
     /// The coarser of two shapes' triangle sizes ([`Shape::spacing`]).
     pub fn coarser(&self, other: &Shape) -> f64 {
         self.spacing.max(other.spacing)

@@ -1,0 +1,192 @@
+//! Whether a mesh is another's triangles each split in four: one step of a subdivision
+//! (midpoint, Loop's, the butterfly's), told by connectivity alone, whatever the positions.
+//!
+//! A smoothing subdivision is another asset (#38), but one step of it on a mesh of a few
+//! thousand vertices moves the surface less, in lengths of the coarser mesh's edges, than a
+//! quadric simplification does (`docs/results/duplicates/`): no distance tells the two
+//! apart. Their meshes do. A split's every coarse triangle becomes a middle triangle on its
+//! edges' new vertices and three corners, each at one of its old vertices; a simplification
+//! leaves no such pattern behind. A split that keeps the surface (midpoint) is
+//! `identical_geometry`, decided before this is asked.
+
+use crate::mesh::topology::{face_neighbours, NO_FACE};
+
+/// A face of a split mesh: the middle of its coarse triangle, or the corner at an old vertex.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Role {
+    Middle,
+    Corner(u32),
+}
+
+/// Whether `fine` is a mesh of `coarse` = (vertices, triangles) with every triangle split in
+/// four: four times the triangles, each face a middle or a corner consistently with its
+/// neighbours, and as many old vertices as the coarse mesh has. Linear in the triangles.
+pub fn is_split(fine: &[[u32; 3]], (vertices, triangles): (usize, usize)) -> bool {
+    if triangles == 0 || fine.len() != 4 * triangles {
+        return false;
+    }
+    let across = face_neighbours(fine).neighbour;
+    let mut roles: Vec<Option<Role>> = vec![None; fine.len()];
+    for f in 0..fine.len() {
+        if roles[f].is_some() {
+            continue;
+        }
+        // The first face of a piece not yet seen is its middle or a corner at one of its
+        // vertices: each guess decides the whole piece, or meets a contradiction.
+        let [a, b, c] = fine[f];
+        let guesses = [
+            Role::Middle,
+            Role::Corner(a),
+            Role::Corner(b),
+            Role::Corner(c),
+        ];
+        if !guesses
+            .into_iter()
+            .any(|role| assign(fine, &across, &mut roles, (f, role)))
+        {
+            return false;
+        }
+    }
+    let count = fine.iter().flatten().max().map_or(0, |&v| v as usize + 1);
+    let mut old = vec![false; count];
+    for role in &roles {
+        if let Some(Role::Corner(v)) = role {
+            old[*v as usize] = true;
+        }
+    }
+    let middles = fine
+        .iter()
+        .zip(&roles)
+        .filter(|(_, r)| **r == Some(Role::Middle));
+    let (mut middle_count, mut clean) = (0, true);
+    for (t, _) in middles {
+        middle_count += 1;
+        clean &= t.iter().all(|&v| !old[v as usize]);
+    }
+    clean && 4 * middle_count == fine.len() && old.iter().filter(|&&o| o).count() == vertices
+}
+
+/// Gives face `f` its `role` and its piece what follows (a middle's three neighbours are
+/// corners at their vertex off the shared edge; a corner's neighbour across the edge off its
+/// old vertex is the middle, across the other two a corner at the same vertex). Undoes what
+/// it gave and answers false at a contradiction.
+fn assign(
+    fine: &[[u32; 3]],
+    across: &[[u32; 3]],
+    roles: &mut [Option<Role>],
+    (f, role): (usize, Role),
+) -> bool {
+    let mut given = Vec::new();
+    let mut pending = vec![(f, role)];
+    let consistent = 'walk: {
+        while let Some((f, role)) = pending.pop() {
+            match roles[f] {
+                Some(r) if r == role => continue,
+                Some(_) => break 'walk false,
+                None => {
+                    roles[f] = Some(role);
+                    given.push(f);
+                }
+            }
+            let t = fine[f];
+            for k in 0..3 {
+                let (u, v, g) = (t[k], t[(k + 1) % 3], across[f][k]);
+                let implied = match role {
+                    Role::Corner(old) if u == old || v == old => Role::Corner(old),
+                    Role::Corner(_) => Role::Middle,
+                    Role::Middle => match fine.get(g as usize) {
+                        Some(other) => match other.iter().find(|&&w| w != u && w != v) {
+                            Some(&w) => Role::Corner(w),
+                            None => break 'walk false,
+                        },
+                        None => break 'walk false,
+                    },
+                };
+                match (g, implied) {
+                    // A corner's outer edge may be on the boundary; no other edge may.
+                    (NO_FACE, Role::Corner(_)) => {}
+                    (NO_FACE, Role::Middle) => break 'walk false,
+                    (g, implied) => pending.push((g as usize, implied)),
+                }
+            }
+        }
+        true
+    };
+    if !consistent {
+        for f in given {
+            roles[f] = None;
+        }
+    }
+    consistent
+}
+
+#[cfg(test)]
+mod tests {
+    use super::is_split;
+    use std::collections::HashMap;
+
+    /// An octahedron, closed, and a square of two triangles, with a boundary.
+    fn meshes() -> [(usize, Vec<[u32; 3]>); 2] {
+        let octahedron = vec![
+            [0, 2, 4],
+            [2, 1, 4],
+            [1, 3, 4],
+            [3, 0, 4],
+            [2, 0, 5],
+            [1, 2, 5],
+            [3, 1, 5],
+            [0, 3, 5],
+        ];
+        [(6, octahedron), (4, vec![[0, 1, 2], [0, 2, 3]])]
+    }
+
+    /// Every triangle split in four at new vertices on its edges.
+    fn split(vertices: usize, triangles: &[[u32; 3]]) -> Vec<[u32; 3]> {
+        let mut middles = HashMap::new();
+        let mut middle = |a: u32, b: u32| {
+            let next = (vertices + middles.len()) as u32;
+            *middles.entry((a.min(b), a.max(b))).or_insert(next)
+        };
+        triangles
+            .iter()
+            .flat_map(|&[a, b, c]| {
+                let (ab, bc, ca) = (middle(a, b), middle(b, c), middle(c, a));
+                [[a, ab, ca], [ab, b, bc], [ca, bc, c], [ab, bc, ca]]
+            })
+            .collect()
+    }
+
+    #[test]
+    fn a_split_mesh_is_one_and_twice_split_is_one_of_the_once_split() {
+        for (vertices, triangles) in meshes() {
+            let once = split(vertices, &triangles);
+            assert!(is_split(&once, (vertices, triangles.len())));
+            let once_vertices = *once.iter().flatten().max().unwrap() as usize + 1;
+            let twice = split(once_vertices, &once);
+            assert!(is_split(&twice, (once_vertices, once.len())));
+            assert!(!is_split(&twice, (vertices, triangles.len())));
+            // Not a split of a mesh with other counts, nor a mesh of itself.
+            assert!(!is_split(&once, (vertices + 1, triangles.len())));
+            assert!(!is_split(&triangles, (vertices, triangles.len())));
+        }
+    }
+
+    #[test]
+    fn one_flipped_edge_or_reordered_pieces_are_no_split() {
+        let (vertices, triangles) = meshes()[0].clone();
+        let once = split(vertices, &triangles);
+        // The edge between the first middle triangle and the corner at its first edge,
+        // flipped: the same counts, no longer a split.
+        let mut flipped = once.clone();
+        let [a, ab, ca] = flipped[0];
+        let [_, bc, _] = flipped[3];
+        flipped[0] = [a, ab, bc];
+        flipped[3] = [a, bc, ca];
+        assert!(!is_split(&flipped, (vertices, triangles.len())));
+        // The triangles' order does not matter.
+        let mut shuffled = once.clone();
+        shuffled.reverse();
+        shuffled.iter_mut().for_each(|t| t.rotate_left(1));
+        assert!(is_split(&shuffled, (vertices, triangles.len())));
+    }
+}
