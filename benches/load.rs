@@ -605,6 +605,13 @@ fn replicas(
     })
 }
 
+/// The configuration the bench's servers run with: the file `SALIENT_CONFIG` names (they
+/// inherit the environment), or the defaults.
+fn served_config() -> salient_server::api::Config {
+    let file = std::env::var_os("SALIENT_CONFIG").map(PathBuf::from);
+    salient_server::api::Config::load(file.as_deref()).expect("SALIENT_CONFIG: a valid file")
+}
+
 fn main() {
     let sizes: Vec<usize> = std::env::var("SALIENT_LOAD_SIZES")
         .unwrap_or_else(|_| "1000,10000".into())
@@ -693,7 +700,7 @@ fn main() {
                     "heldout_rank_p50_ms": held_out["heldout_rank_p50_ms"],
                     "heldout_rank_p99_ms": held_out["heldout_rank_p99_ms"],
                     "rss_mib": f["rss_mib"],
-                    "oversampling": salient_server::api::Config::default().first_stage_oversampling,
+                    "oversampling": served_config().first_stage_oversampling,
                 });
             }
             figures.push(replica_figures);

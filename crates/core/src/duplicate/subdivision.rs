@@ -9,7 +9,22 @@
 //! leaves no such pattern behind. A split that keeps the surface (midpoint) is
 //! `identical_geometry`, decided before this is asked.
 
+use rustc_hash::FxHashMap as HashMap;
+
 use crate::mesh::topology::{face_neighbours, NO_FACE};
+
+/// The share of old vertices, and of middles on an old vertex, by which a split may miss
+/// its counts: a piece of the mesh joined to the rest only by edges of more than two faces
+/// (CAPOD's vases m63 and m65 have a few) may be labelled either way, ~20 of 30 000 middles.
+const ASTRAY: f64 = 0.01;
+
+/// A fine mesh as [`assign`] walks it: its triangles, the face across each of their edges
+/// ([`face_neighbours`]), and whether an edge without one is on the boundary.
+struct Mesh<'a> {
+    fine: &'a [[u32; 3]],
+    across: &'a [[u32; 3]],
+    boundary: &'a dyn Fn(u32, u32) -> bool,
+}
 
 /// A face of a split mesh: the middle of its coarse triangle, or the corner at an old vertex.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -20,14 +35,33 @@ enum Role {
 
 /// Whether `fine` is a mesh of `coarse` = (vertices, triangles) with every triangle split in
 /// four: four times the triangles, each face a middle or a corner consistently with its
-/// neighbours, and as many old vertices as the coarse mesh has. Linear in the triangles.
+/// neighbours, a quarter of them middles, as many old vertices as the coarse mesh has, and
+/// no middle on one (the last three up to [`ASTRAY`]). Linear in the triangles.
 pub fn is_split(fine: &[[u32; 3]], (vertices, triangles): (usize, usize)) -> bool {
     if triangles == 0 || fine.len() != 4 * triangles {
         return false;
     }
     let across = face_neighbours(fine).neighbour;
+    // Edges without one face across: on the boundary (one face) or of more than two.
+    let mut lonely: HashMap<(u32, u32), usize> = HashMap::default();
+    for (t, across) in fine.iter().zip(&across) {
+        for k in (0..3).filter(|&k| across[k] == NO_FACE) {
+            let (u, v) = (t[k], t[(k + 1) % 3]);
+            *lonely.entry((u.min(v), u.max(v))).or_default() += 1;
+        }
+    }
+    let boundary = |u: u32, v: u32| lonely.get(&(u.min(v), u.max(v))) == Some(&1);
+    let mesh = Mesh {
+        fine,
+        across: &across,
+        boundary: &boundary,
+    };
     let mut roles: Vec<Option<Role>> = vec![None; fine.len()];
-    for f in 0..fine.len() {
+    // A face with no face across any edge (its edges all of more than two faces) is not
+    // constrained by its neighbours: labelled last, from its vertices' labels.
+    let (alone, joined): (Vec<usize>, Vec<usize>) =
+        (0..fine.len()).partition(|&f| across[f].iter().all(|&g| g == NO_FACE));
+    for f in joined {
         if roles[f].is_some() {
             continue;
         }
@@ -42,7 +76,7 @@ pub fn is_split(fine: &[[u32; 3]], (vertices, triangles): (usize, usize)) -> boo
         ];
         if !guesses
             .into_iter()
-            .any(|role| assign(fine, &across, &mut roles, (f, role)))
+            .any(|role| assign(&mesh, &mut roles, (f, role)))
         {
             return false;
         }
@@ -54,28 +88,35 @@ pub fn is_split(fine: &[[u32; 3]], (vertices, triangles): (usize, usize)) -> boo
             old[*v as usize] = true;
         }
     }
-    let middles = fine
-        .iter()
-        .zip(&roles)
-        .filter(|(_, r)| **r == Some(Role::Middle));
-    let (mut middle_count, mut clean) = (0, true);
-    for (t, _) in middles {
-        middle_count += 1;
-        clean &= t.iter().all(|&v| !old[v as usize]);
+    for f in alone {
+        roles[f] = Some(match fine[f].into_iter().find(|&v| old[v as usize]) {
+            Some(v) => Role::Corner(v),
+            None => Role::Middle,
+        });
     }
-    clean && 4 * middle_count == fine.len() && old.iter().filter(|&&o| o).count() == vertices
+    let (mut middles, mut astray) = (0, 0);
+    for (t, role) in fine.iter().zip(&roles) {
+        if *role == Some(Role::Middle) {
+            middles += 1;
+            astray += usize::from(t.iter().any(|&v| old[v as usize]));
+        }
+    }
+    let near = |x: usize, y: usize| x.abs_diff(y) as f64 <= ASTRAY * y as f64;
+    near(4 * middles, fine.len())
+        && near(old.iter().filter(|&&o| o).count(), vertices)
+        && astray as f64 <= ASTRAY * middles as f64
 }
 
 /// Gives face `f` its `role` and its piece what follows (a middle's three neighbours are
 /// corners at their vertex off the shared edge; a corner's neighbour across the edge off its
 /// old vertex is the middle, across the other two a corner at the same vertex). Undoes what
 /// it gave and answers false at a contradiction.
-fn assign(
-    fine: &[[u32; 3]],
-    across: &[[u32; 3]],
-    roles: &mut [Option<Role>],
-    (f, role): (usize, Role),
-) -> bool {
+fn assign(mesh: &Mesh, roles: &mut [Option<Role>], (f, role): (usize, Role)) -> bool {
+    let Mesh {
+        fine,
+        across,
+        boundary,
+    } = mesh;
     let mut given = Vec::new();
     let mut pending = vec![(f, role)];
     let consistent = 'walk: {
@@ -91,23 +132,25 @@ fn assign(
             let t = fine[f];
             for k in 0..3 {
                 let (u, v, g) = (t[k], t[(k + 1) % 3], across[f][k]);
+                let outer = matches!(role, Role::Corner(old) if u == old || v == old);
+                if g == NO_FACE {
+                    // Only a corner's outer edge may be on the boundary. An edge of more than
+                    // two faces (a coarse mesh's doubled triangles split into doubled
+                    // middles) says nothing: the counts must still hold.
+                    if !outer && boundary(u, v) {
+                        break 'walk false;
+                    }
+                    continue;
+                }
                 let implied = match role {
-                    Role::Corner(old) if u == old || v == old => Role::Corner(old),
+                    Role::Corner(old) if outer => Role::Corner(old),
                     Role::Corner(_) => Role::Middle,
-                    Role::Middle => match fine.get(g as usize) {
-                        Some(other) => match other.iter().find(|&&w| w != u && w != v) {
-                            Some(&w) => Role::Corner(w),
-                            None => break 'walk false,
-                        },
+                    Role::Middle => match fine[g as usize].iter().find(|&&w| w != u && w != v) {
+                        Some(&w) => Role::Corner(w),
                         None => break 'walk false,
                     },
                 };
-                match (g, implied) {
-                    // A corner's outer edge may be on the boundary; no other edge may.
-                    (NO_FACE, Role::Corner(_)) => {}
-                    (NO_FACE, Role::Middle) => break 'walk false,
-                    (g, implied) => pending.push((g as usize, implied)),
-                }
+                pending.push((g as usize, implied));
             }
         }
         true
@@ -125,8 +168,9 @@ mod tests {
     use super::is_split;
     use std::collections::HashMap;
 
-    /// An octahedron, closed, and a square of two triangles, with a boundary.
-    fn meshes() -> [(usize, Vec<[u32; 3]>); 2] {
+    /// An octahedron, closed; a square of two triangles, with a boundary; and the
+    /// octahedron with a triangle doubled, whose edges then have three faces.
+    fn meshes() -> [(usize, Vec<[u32; 3]>); 3] {
         let octahedron = vec![
             [0, 2, 4],
             [2, 1, 4],
@@ -137,7 +181,13 @@ mod tests {
             [3, 1, 5],
             [0, 3, 5],
         ];
-        [(6, octahedron), (4, vec![[0, 1, 2], [0, 2, 3]])]
+        let mut doubled = octahedron.clone();
+        doubled.push([4, 2, 0]);
+        [
+            (6, octahedron),
+            (4, vec![[0, 1, 2], [0, 2, 3]]),
+            (6, doubled),
+        ]
     }
 
     /// Every triangle split in four at new vertices on its edges.
