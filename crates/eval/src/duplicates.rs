@@ -583,12 +583,17 @@ pub fn run(
 const HARDEST: usize = 300;
 
 /// The evidence files `a` and `b` should be linked by, if they are one asset: files of one
-/// model by the weaker of their disguises' (`None` when either is another asset), files of
-/// one design ([`SAME_DESIGN`]) by `same_shape`.
+/// model by the weaker of their disguises' (`None` when either is another asset, unless both
+/// are its copies by one disguise), files of one design ([`SAME_DESIGN`]) by `same_shape`.
 fn expected(files: &[File], a: usize, b: usize) -> Option<Evidence> {
     let (x, y) = (&files[a], &files[b]);
     if x.design != y.design {
         return None;
+    }
+    // Two copies made alike from one model (byte-identical models' Loop copies: CAPOD's
+    // pianos m121 = m123) are one asset, whatever the family.
+    if x.source == y.source && x.disguise.is_some() && x.disguise == y.disguise {
+        return Some(Evidence::SameShape);
     }
     let weaker = x.expected()?.max(y.expected()?);
     Some(if x.source == y.source {
