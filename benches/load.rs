@@ -30,6 +30,8 @@
 //! its first stage in the database (`--index pgvector`, #40) and b exactly; each size's
 //! `"pgvector"` figures give a's recall@10 against b over the held-out uploads, also on a
 //! database of the base models alone (`recall_at_10_no_copies`), a's ranking times and memory.
+//! `SALIENT_LOAD_DATABASE=URL` runs on that PostgreSQL server instead of one of the bench's own
+//! and keeps the models an earlier run left there (a million take an hour to fill).
 //!
 //! A bench target rather than a subcommand: it stays out of `cargo test` and of the shipped
 //! binary, and cargo builds the server it starts in release mode.
@@ -627,7 +629,16 @@ fn main() {
         .expect("a client");
     let sources = sources();
     let postgres = match std::env::var("SALIENT_LOAD_STORE").as_deref() {
-        Ok("postgres") => Some(own_postgres::OwnServer::start()),
+        // `SALIENT_LOAD_DATABASE=URL`: that server, its models kept, instead of one of the
+        // bench's own: a catalogue filled once (a million models take an hour) measured again.
+        Ok("postgres") => Some(match std::env::var("SALIENT_LOAD_DATABASE") {
+            Ok(url) => (None, url),
+            Err(_) => {
+                let server = own_postgres::OwnServer::start();
+                let url = server.url().to_string();
+                (Some(server), url)
+            }
+        }),
         Ok("sled") | Err(_) => None,
         Ok(other) => panic!("SALIENT_LOAD_STORE: sled or postgres, not {other}"),
     };
@@ -648,9 +659,9 @@ fn main() {
         mesh_count(sources.ingest.path())
     );
     let base = base_store(&sources);
-    let postgres = postgres.map(|server| {
-        let store = PostgresStore::open(server.url()).expect("the bench's database opens");
-        (server, store)
+    let postgres = postgres.map(|(server, url)| {
+        let store = PostgresStore::open(&url).expect("the bench's database opens");
+        (server, url, store)
     });
     // `SALIENT_LOAD_INDEX=pgvector`: replica a's first stage in the database (#40), its
     // recall@10 measured against replica b's exact ranking.
@@ -673,24 +684,24 @@ fn main() {
     println!("|---|---|---|---|---|---|---|---|---|");
     let data_dir = temporary();
     let data = data_dir.path().join("store");
-    let mut stored = 0;
+    // The models `m000000…` an earlier run left in a kept database are not made again.
+    let mut stored = postgres.as_ref().map_or(0, |(_, _, store)| store.len());
     let mut figures = Vec::new();
     for &size in &sizes {
         let clock = Instant::now();
         match &postgres {
-            Some((_, store)) => fill(store, &base, stored, size),
+            Some((_, _, store)) => fill(store, &base, stored.min(size), size),
             None => fill(&SledStore::open(&data).expect("opens"), &base, stored, size),
         }
         eprintln!(
             "filled {} models in {:.1} s",
-            size - stored,
+            size.saturating_sub(stored),
             clock.elapsed().as_secs_f64()
         );
-        stored = size;
-        if let Some((server, _)) = &postgres {
+        stored = stored.max(size);
+        if let Some((_, url, _)) = &postgres {
             let measured = (size, measured[0], budget);
-            let mut replica_figures =
-                replicas(&runtime, &client, server.url(), &sources, measured, &index);
+            let mut replica_figures = replicas(&runtime, &client, url, &sources, measured, &index);
             if index == "pgvector" {
                 let f = &replica_figures;
                 let held_out = &f["methods"][measured.1.to_string()];
