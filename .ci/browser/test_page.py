@@ -206,8 +206,7 @@ def main():
         def view_3d():
             phase[0] = "3d view"
             step("the query's preview in the 3D view (#view[data-models=1])")
-            page.wait_for_selector('#view[data-models="1"]', timeout=SEARCH_TIMEOUT_MS)
-            page.wait_for_timeout(200)
+            page.wait_for_selector('#view[data-models="1"][data-drawn]', timeout=SEARCH_TIMEOUT_MS)
             page.screenshot(path=str(shots / "results.png"), full_page=True)
             target = page.locator('.result[data-rank="2"]')
             expect(target.count() == 1, "no rank-2 result to compare with")
@@ -215,8 +214,7 @@ def main():
             target.click(position={"x": 40, "y": 40})  # on the thumbnail, not on a button
             step(f"{name}'s preview beside the query (#view[data-models=2])")
             page.wait_for_selector(f'.result.selected[data-model-id="{name}"]')
-            page.wait_for_selector(f'#view[data-models="2"][data-result="{name}"]')
-            page.wait_for_timeout(300)  # a frame or two
+            page.wait_for_selector(f'#view[data-models="2"][data-result="{name}"][data-drawn]')
             matches = int(page.get_attribute("#view", "data-matches") or 0)
             expect(matches > 0, "the hit has no explanation matches: no lines drawn")
             before = page.evaluate(READ_VIEW)
@@ -231,11 +229,13 @@ def main():
             # Orbit: a drag must turn the scene.
             box = page.locator("#view").bounding_box()
             cx, cy = box["x"] + box["width"] / 2, box["y"] + box["height"] / 2
+            frames = int(page.get_attribute("#view", "data-drawn"))
             page.mouse.move(cx, cy)
             page.mouse.down()
             page.mouse.move(cx + 120, cy + 30, steps=6)
             page.mouse.up()
-            page.wait_for_timeout(300)
+            step("a frame drawn after the drag (#view[data-drawn] counts up)")
+            page.wait_for_function("(n) => Number(document.querySelector('#view').dataset.drawn) > n", arg=frames)
             after = page.evaluate(READ_VIEW)
             expect(after["hash"] != before["hash"], "dragging did not rotate the 3D view")
             expect(after["drawn"] > total * 0.03, "the 3D view went blank after a drag")
@@ -283,8 +283,8 @@ def main():
             top = page.locator('.result[data-rank="1"]')
             top_id = top.get_attribute("data-model-id")
             top.click(position={"x": 40, "y": 40})
-            page.wait_for_selector(f'#view[data-models="2"][data-result="{top_id}"]', timeout=SEARCH_TIMEOUT_MS)
-            page.wait_for_timeout(300)
+            page.wait_for_selector(f'#view[data-models="2"][data-result="{top_id}"][data-drawn]',
+                                   timeout=SEARCH_TIMEOUT_MS)
             page.screenshot(path=str(shots / "similar-d2.png"), full_page=True)
             return f"similar to chair_m35: {len(ids)} results; d2: {n} results"
 

@@ -198,6 +198,9 @@ export class View {
       line: this.program(LINE_VS, LINE_FS),
     };
     this.models = [null, null]; // query, result
+    // Frames drawn since the last layout, in #view[data-drawn]: what the canvas shows is
+    // the current scene once it is set (the browser test waits on it, not on time).
+    this.frames = 0;
     this.lines = null;
     this.labels = [0, 1].map(() => labelHost.appendChild(document.createElement('span')));
     this.labels.forEach((l) => { l.className = 'view-label'; l.hidden = true; });
@@ -283,6 +286,7 @@ export class View {
     this.buildLines();
     this.canvas.dataset.models = String(this.models.filter(Boolean).length);
     if (!r) delete this.canvas.dataset.result; // app.js names the result it shows
+    delete this.canvas.dataset.drawn;
     this.redraw();
   }
 
@@ -426,6 +430,7 @@ export class View {
       this.disableAttribs(prog);
     }
     this.placeLabels(vp, w, h, dpr);
+    c.dataset.drawn = String(++this.frames);
   }
 
   use(name) {
