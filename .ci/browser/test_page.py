@@ -15,6 +15,7 @@ import re
 import shutil
 import sys
 import time
+import urllib.request
 
 from playwright.sync_api import Error as PlaywrightError
 from playwright.sync_api import sync_playwright
@@ -53,7 +54,7 @@ READ_VIEW = """() => {
   g.drawImage(src, 0, 0);
   const d = g.getImageData(0, 0, c.width, c.height).data;
   const bg = [d[0], d[1], d[2]];
-  let drawn = 0, left = 0, right = 0, red = 0;
+  let drawn = 0, left = 0, right = 0, red = 0, orange = 0;
   const colours = new Set();
   for (let i = 0; i < d.length; i += 4) {
     const diff = Math.abs(d[i] - bg[0]) + Math.abs(d[i + 1] - bg[1]) + Math.abs(d[i + 2] - bg[2]);
@@ -63,9 +64,11 @@ READ_VIEW = """() => {
     if (x < c.width / 3) left++;
     if (x > 2 * c.width / 3) right++;
     if (d[i] > 180 && d[i + 1] < 80 && d[i + 2] < 80) red++;
+    // A placed part (view.js PIECE, 0.96 / 0.5 / 0.12, shaded): green half of red, little blue.
+    if (d[i] > 80 && d[i + 1] > 0.35 * d[i] && d[i + 1] < 0.7 * d[i] && d[i + 2] < 0.3 * d[i]) orange++;
     colours.add((d[i] >> 4) << 8 | (d[i + 1] >> 4) << 4 | (d[i + 2] >> 4));
   }
-  return { width: c.width, height: c.height, drawn, left, right, red, colours: colours.size,
+  return { width: c.width, height: c.height, drawn, left, right, red, orange, colours: colours.size,
            hash: Array.from(d.filter((_, i) => i % 97 === 0)).join(',') };
 }"""
 
@@ -78,6 +81,30 @@ THUMBS_SETTLED = """(sel) => {
 BROKEN_THUMBS = """(sel) => [...document.querySelectorAll(sel)]
   .filter((c) => { const img = c.querySelector('img'); return !img || !img.complete || img.naturalWidth === 0; })
   .map((c) => c.dataset.modelId + ':' + c.dataset.thumb)"""
+
+
+def horse_part():
+    """An OBJ of a piece of the horse fixture: the triangles within 35 % of its size around its
+    highest vertex (CAPOD stands on +z), turned a quarter about z, doubled and moved, so that
+    the placement the search returns must undo all three."""
+    vertices, faces = [], []
+    for line in (FIXTURES / "capod" / "horse_m145.obj").read_text().splitlines():
+        fields = line.split()
+        if fields[:1] == ["v"]:
+            vertices.append(tuple(float(x) for x in fields[1:4]))
+        elif fields[:1] == ["f"]:
+            faces.append([int(f.split("/")[0]) - 1 for f in fields[1:]])
+    lo = [min(v[k] for v in vertices) for k in range(3)]
+    hi = [max(v[k] for v in vertices) for k in range(3)]
+    size = sum((h - l) ** 2 for l, h in zip(lo, hi)) ** 0.5
+    top = max(vertices, key=lambda v: v[2])
+    near = lambda v: sum((a - b) ** 2 for a, b in zip(v, top)) ** 0.5 < 0.35 * size
+    kept = [f for f in faces if all(near(vertices[i]) for i in f)]
+    used = sorted({i for f in kept for i in f})
+    number = {i: n + 1 for n, i in enumerate(used)}
+    lines = [f"v {-2 * y + 5:.6f} {2 * x:.6f} {2 * z - 3:.6f}" for x, y, z in (vertices[i] for i in used)]
+    lines += ["f " + " ".join(str(number[i]) for i in f) for f in kept]
+    return ("\n".join(lines) + "\n").encode()
 
 
 def main():
@@ -289,6 +316,48 @@ def main():
             return f"similar to chair_m35: {len(ids)} results; d2: {n} results"
 
         # 6 --------------------------------------------------------------------------------
+        def part_search():
+            phase[0] = "part search"
+            # A part is searched among the stored patches, made in the background after each
+            # upload: the server's gauge says when none is pending (the run serves /metrics).
+            step("salient_patches_pending 0 on /metrics")
+            deadline = time.monotonic() + SEARCH_TIMEOUT_MS / 1000
+            while "salient_patches_pending 0" not in urllib.request.urlopen(url + "/metrics").read().decode():
+                expect(time.monotonic() < deadline, "the stored models' patches were never made")
+                time.sleep(0.2)
+            step("#method disabled after choosing a part search")
+            page.select_option("#mode", "partial")
+            expect(page.is_disabled("#method"), "the method can still be chosen for a part search")
+            mark_results("before-part")
+            step("results of the horse's part (#results-summary names horse_part.obj)")
+            page.set_input_files("#query-file", files=[{
+                "name": "horse_part.obj", "mimeType": "text/plain", "buffer": horse_part()}])
+            results_changed("before-part")
+            page.wait_for_function(
+                "() => document.querySelector('#results-summary').textContent.includes('horse_part.obj')",
+                timeout=SEARCH_TIMEOUT_MS)
+            summary = page.text_content("#results-summary")
+            expect("as a part" in summary, f"the results do not say they are a part search's: {summary!r}")
+            top = page.locator('.result[data-rank="1"]')
+            source = top.get_attribute("data-model-id")
+            expect(source == "horse_m145", f"the part's source is not first: {source}")
+            shown = top.locator(".distance").text_content().strip()
+            expect(shown.startswith("residual"), f"the source's card does not show its residual: {shown!r}")
+            top.click(position={"x": 40, "y": 40})
+            step("the part laid on its source (#view[data-placed][data-result=horse_m145][data-drawn])")
+            page.wait_for_selector('#view[data-placed="1"][data-result="horse_m145"][data-drawn]',
+                                   timeout=SEARCH_TIMEOUT_MS)
+            seen = page.evaluate(READ_VIEW)
+            total = seen["width"] * seen["height"]
+            expect(seen["drawn"] > total * 0.03, f"the 3D view is nearly blank: {seen['drawn']} pixels")
+            expect(seen["orange"] > total * 0.002, f"the placed part hardly shows: {seen['orange']} pixels")
+            detail = page.text_content("#detail-distances")
+            expect("registered: residual" in detail, f"the detail does not give the residual: {detail!r}")
+            page.locator("#view").screenshot(path=str(shots / "part-placed.png"))
+            page.screenshot(path=str(shots / "part-search.png"), full_page=True)
+            return f"horse_part.obj: {source} first ({shown}), the part laid on it: {seen['orange']} pixels"
+
+        # 7 --------------------------------------------------------------------------------
         def download():
             phase[0] = "download"
             step("a download from horse_m145's download button")
@@ -304,7 +373,7 @@ def main():
             saved.unlink()
             return "horse_m145.obj, byte for byte"
 
-        # 7 --------------------------------------------------------------------------------
+        # 8 --------------------------------------------------------------------------------
         def no_console_errors():
             phase[0] = "end"
             page.wait_for_timeout(200)
@@ -314,7 +383,7 @@ def main():
 
         checks = [("key and library", key_and_library), ("upload search", upload_search),
                   ("3d view", view_3d), ("bad file", bad_file), ("similar and method", similar_and_method),
-                  ("download", download), ("console", no_console_errors)]
+                  ("part search", part_search), ("download", download), ("console", no_console_errors)]
         failed = None
         for name, fn in checks:
             try:

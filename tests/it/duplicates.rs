@@ -153,23 +153,30 @@ fn every_common_simplifier_and_linear_subdivision_keep_the_shape_and_smoothing_a
                 "{name}: {found:?}"
             );
         }
-        // Loop's smoothing subdivision is another asset, though it moves the surface too
-        // little for the distances to say so (nine in ten of the vertices within the limit):
-        // its mesh, a split, does.
-        let smooth = disguised(&mesh, |p, t, _| disguise::loop_subdivided(p, t));
-        assert_eq!(evidence(&mesh, &smooth), None, "Loop subdivision");
-        let (a, b) = (shape(&mesh), shape(&smooth));
-        assert!(a.split_of(&b) && b.split_of(&a));
-        let distances_alone = judge(
-            (a.geometry_deviation(&b, params.geometry), false),
-            |reach, pass| a.align(&b, reach, pass),
-            a.coarser(&b),
-            &params,
-        );
-        assert_eq!(
-            distances_alone.map(|v| v.evidence),
-            Some(Evidence::SameShape)
-        );
+        // A smoothing subdivision (Loop's, Catmull–Clark's) is another asset, though it moves
+        // the surface too little for the distances to say so (nine in ten of the vertices
+        // within the limit): its mesh, a split, does.
+        let smoothing: [(&str, Family); 2] = [
+            ("Loop", |p, t, _| disguise::loop_subdivided(p, t)),
+            ("Catmull–Clark", |p, t, _| disguise::catmull_clark(p, t)),
+        ];
+        for (name, family) in smoothing {
+            let smooth = disguised(&mesh, family);
+            assert_eq!(evidence(&mesh, &smooth), None, "{name}");
+            let (a, b) = (shape(&mesh), shape(&smooth));
+            assert!(a.split_of(&b) && b.split_of(&a), "{name}");
+            let distances_alone = judge(
+                (a.geometry_deviation(&b, params.geometry), false),
+                |reach, pass| a.align(&b, reach, pass),
+                a.coarser(&b),
+                &params,
+            );
+            assert_eq!(
+                distances_alone.map(|v| v.evidence),
+                Some(Evidence::SameShape),
+                "{name}"
+            );
+        }
         // A morph of the quadric copy and another pose are still other assets.
         let morph = disguised(&stretched(&mesh), disguise::quadric);
         assert_eq!(evidence(&mesh, &morph), None, "a morph");
@@ -208,12 +215,18 @@ fn a_tree_that_lost_a_few_leaves_is_the_tree_and_one_that_lost_its_crown_is_not(
     let evidence = |copy: &RawMesh, params: &DuplicateParams| {
         verify(&original, &shape(copy), params).map(|v| v.evidence)
     };
-    // Every tenth leaf deleted (as an edge collapse deletes isolated triangles), turned about
-    // the trunk, where the tree's two moments are near-equal and its principal axes arbitrary,
-    // then moved.
+    // Every tenth leaf deleted and the trunk re-triangulated (as a simplifier deletes
+    // isolated triangles and re-tessellates what it keeps), turned about the trunk, where the
+    // tree's two moments are near-equal and its principal axes arbitrary, then moved.
     let thinned = shapes::tree(1, 120, |leaf| leaf % 10 != 0);
+    let welded = weld(&thinned, 1e-6).unwrap();
+    let (positions, triangles) = disguise::retriangulated(&welded.positions, &welded.triangles);
+    let simplified = RawMesh {
+        positions,
+        triangles,
+    };
     let turn = DMat4::from_rotation_z(37f64.to_radians());
-    let copy = shapes::transformed(&thinned, shapes::random_motion(5) * turn);
+    let copy = shapes::transformed(&simplified, shapes::random_motion(5) * turn);
     assert_eq!(evidence(&copy, &params), Some(Evidence::SameShape));
     // That is the forgiveness for deleted small pieces: without it, a leaf is too far.
     let unforgiving = DuplicateParams {
@@ -221,6 +234,11 @@ fn a_tree_that_lost_a_few_leaves_is_the_tree_and_one_that_lost_its_crown_is_not(
         ..params.clone()
     };
     assert_eq!(evidence(&copy, &unforgiving), None);
+    // The same leaves deleted from the tree as it is, every other triangle kept: a variant
+    // with fewer leaves (CAPOD's tree m54 is m49 and 17 % more surface in leaves), not a
+    // simplification, which re-tessellates what it keeps.
+    let fewer = shapes::transformed(&thinned, shapes::random_motion(5) * turn);
+    assert_eq!(evidence(&fewer, &params), None);
     // The bare trunk (a fifth of the surface gone) and a trunk with other leaves (CAPOD's
     // trees m49 and m59 share one) are other assets.
     assert_eq!(evidence(&shapes::tree(1, 120, |_| false), &params), None);
@@ -489,4 +507,154 @@ async fn compressed_gltf_copies_are_found_as_their_original(#[case] store: Store
             "{name}: {evidence}"
         );
     }
+}
+
+/// `mesh` with a layer over `share` of its area: its first triangles, copied a hundredth of its
+/// size outward along its vertex normals as a piece of their own. A design that adds parts
+/// (CAPOD's airplane m48 is m47's every face and 4 % more surface).
+fn with_layer(mesh: &RawMesh, share: f64) -> RawMesh {
+    let p = &mesh.positions;
+    let normal = |t: &[u32; 3]| {
+        let [a, b, c] = t.map(|v| p[v as usize]);
+        (b - a).cross(c - a)
+    };
+    let mut normals = vec![DVec3::ZERO; p.len()];
+    for t in &mesh.triangles {
+        for v in t {
+            normals[*v as usize] += normal(t);
+        }
+    }
+    let total: f64 = mesh.triangles.iter().map(|t| normal(t).length()).sum();
+    let (lo, hi) = p.iter().fold((DVec3::MAX, DVec3::MIN), |(lo, hi), &q| {
+        (lo.min(q), hi.max(q))
+    });
+    let lift = 0.01 * lo.distance(hi);
+    let mut layered = mesh.clone();
+    let (mut covered, mut copies) = (0.0, std::collections::HashMap::new());
+    for t in &mesh.triangles {
+        if covered >= share * total {
+            break;
+        }
+        covered += normal(t).length();
+        let copy = t.map(|v| {
+            *copies.entry(v).or_insert_with(|| {
+                layered
+                    .positions
+                    .push(p[v as usize] + normals[v as usize].normalize() * lift);
+                layered.positions.len() as u32 - 1
+            })
+        });
+        layered.triangles.push(copy);
+    }
+    layered
+}
+
+#[test]
+fn a_model_with_a_part_added_is_another_design_and_one_with_a_sliver_is_not() {
+    // The tree: its leaves pin the alignment, so that its vertices pair with the copy's
+    // (a smooth blob's may slide along the surface by an edge or more: no pairs, no rule).
+    let params = DuplicateParams::default();
+    let mesh = shapes::tree(1, 120, |_| true);
+    let original = shape(&mesh);
+    let evidence = |copy: &RawMesh, params: &DuplicateParams| {
+        verify(&original, &shape(copy), params).map(|v| v.evidence)
+    };
+    let added = with_layer(&mesh, 0.04);
+    assert_eq!(evidence(&added, &params), None, "4 % of the surface added");
+    // The distances alone take it for the same shape: the layer lies within their limits
+    // and every vertex of the model is one of its vertices.
+    let distances_alone = DuplicateParams {
+        added: 1.0,
+        ..params.clone()
+    };
+    assert_eq!(
+        evidence(&added, &distances_alone),
+        Some(Evidence::SameShape)
+    );
+    // A sliver (0.4 % of the surface) is what a cleanup removes, or an exporter adds.
+    let sliver = with_layer(&mesh, 0.004);
+    assert_eq!(
+        evidence(&sliver, &params),
+        Some(Evidence::SameShape),
+        "a sliver"
+    );
+}
+
+#[test]
+fn an_airplane_with_ten_parts_added_is_another_design() {
+    // CAPOD's m48 is m47's every face and ten parts of 34 triangles more (4 % of the
+    // surface), which its symmetry also fits mirrored; a library's copy of m48 moved and
+    // rescaled is still not m47, while m48's own simplification is m48.
+    let load = |name: &str| {
+        let bytes = fixture(name);
+        load_bytes(
+            &bytes,
+            salient_core::mesh::Format::Obj,
+            &NoResources,
+            &Limits::default(),
+        )
+        .unwrap()
+    };
+    let params = DuplicateParams::default();
+    let (m47, m48) = (
+        load("capod_airplane_m47.obj"),
+        load("capod_airplane_m48.obj"),
+    );
+    let moved = shapes::transformed(&m48, shapes::random_motion(3));
+    assert_eq!(verify(&shape(&m47), &shape(&moved), &params), None);
+    assert_eq!(verify(&shape(&moved), &shape(&m47), &params), None);
+    let simplified = verify(&shape(&m48), &shape(&remeshed(&m48)), &params);
+    assert_eq!(simplified.map(|v| v.evidence), Some(Evidence::SameShape));
+}
+
+#[test]
+fn one_mesh_with_leaves_moved_is_another_design_and_quantised_is_not() {
+    // The tree: its leaves pin the alignment, so that its vertices pair with the copy's.
+    let params = DuplicateParams::default();
+    let mesh = shapes::tree(1, 120, |_| true);
+    let original = shape(&mesh);
+    // A twentieth of the leaves moved by a tenth of the crown's size, turned and moved.
+    let mut edited = mesh.clone();
+    for leaf in (0..120).step_by(20) {
+        let first = edited.positions.len() - 3 * (120 - leaf);
+        for p in &mut edited.positions[first..first + 3] {
+            p.z += 0.06;
+        }
+    }
+    let edited = shapes::transformed(&edited, shapes::random_motion(7));
+    assert_eq!(
+        verify(&original, &shape(&edited), &params),
+        None,
+        "leaves moved"
+    );
+    // The distances alone take it for the same shape: the leaves stay near where they were.
+    let distances_alone = DuplicateParams {
+        moved: f64::INFINITY,
+        ..params.clone()
+    };
+    assert_eq!(
+        verify(&original, &shape(&edited), &distances_alone).map(|v| v.evidence),
+        Some(Evidence::SameShape)
+    );
+    // Positions quantised to 2⁻¹⁶ of the box (KHR_mesh_quantization) and turned: the same.
+    let (lo, hi) = mesh
+        .positions
+        .iter()
+        .fold((DVec3::MAX, DVec3::MIN), |(lo, hi), &p| {
+            (lo.min(p), hi.max(p))
+        });
+    let step = (hi - lo) / 65535.0;
+    let quantised = RawMesh {
+        positions: mesh
+            .positions
+            .iter()
+            .map(|&p| lo + ((p - lo) / step).round() * step)
+            .collect(),
+        triangles: mesh.triangles.clone(),
+    };
+    let quantised = shapes::transformed(&quantised, shapes::random_motion(8));
+    assert!(
+        verify(&original, &shape(&quantised), &params).is_some(),
+        "quantised"
+    );
 }

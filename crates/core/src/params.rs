@@ -483,6 +483,8 @@ impl SimilarityParams {
                     d.vertices_per_edge,
                     d.split_vertices_per_edge,
                     d.deleted,
+                    d.added,
+                    d.moved,
                     d.geometry,
                 ]
                 .iter()
@@ -568,6 +570,15 @@ pub struct DuplicateParams {
     /// largest distance are left out of the limits above, when they are at most this share
     /// of its surface.
     pub deleted: f64,
+    /// A coarser mesh that is the finer's own triangles (a sub-mesh, `crate::duplicate::Shape`)
+    /// is the same asset only when it lacks at most this share of the finer's area: the slivers
+    /// and loose triangles a cleanup removes, not parts another design adds (CAPOD's airplane
+    /// m48 is m47 and 4 % more surface).
+    pub added: f64,
+    /// One mesh with its vertices edited (the same triangles, vertex for vertex) is the same
+    /// asset only when no vertex moved farther than this many of its edge lengths once all are
+    /// fitted: float precision and quantisation move them far less, a morph or a moved part more.
+    pub moved: f64,
     /// `identical_geometry` when the welded meshes have the same counts and every vertex lies
     /// within this many RMS radii of the other surface, unrotated.
     pub geometry: f64,
@@ -589,6 +600,8 @@ impl Default for DuplicateParams {
             vertices_per_edge: 0.105,
             split_vertices_per_edge: 0.01,
             deleted: 0.06,
+            added: 0.01,
+            moved: 0.05,
             geometry: 1e-4,
         }
     }

@@ -1,6 +1,7 @@
 //! The ways asset tools re-tessellate a mesh, as disguises for the duplicate benchmark
 //! ([`super::duplicates`], issue #38): each *family* is one common tool's way of making the
-//! same asset coarser or finer, and one (Loop subdivision) a way of making another asset.
+//! same asset coarser or finer, and two (Loop's and Catmull–Clark's subdivision) ways of making
+//! another asset.
 //!
 //! - [`edge_collapse`]: meshoptimizer's edge collapse, which keeps a subset of the vertices;
 //! - [`quadric`]: Garland–Heckbert quadric edge collapse *with optimal placement*, which moves
@@ -12,11 +13,13 @@
 //! - [`midpoint`]: linear subdivision, every triangle split in four at its edges' midpoints —
 //!   the same surface with more triangles;
 //! - [`loop_subdivided`]: Loop's smoothing subdivision, which moves the surface: a smoother,
-//!   shrunken asset, *not* the same shape.
+//!   shrunken asset, *not* the same shape;
+//! - [`catmull_clark`]: Catmull–Clark's, with its quads triangulated: the same, and what
+//!   Blender's Subdivision Surface makes.
 //!
 //! The quadric simplifier and the subdivisions are written here: meshoptimizer (the `meshopt`
 //! crate) keeps input vertices by design, and no maintained Rust crate offers Garland–Heckbert
-//! optimal placement or Loop subdivision over an indexed mesh without bringing its own mesh
+//! optimal placement or Loop's or Catmull–Clark's subdivision over an indexed mesh without bringing its own mesh
 //! types and math stack for ~200 lines of work.
 
 use std::cmp::Ordering;
@@ -534,6 +537,73 @@ pub fn loop_subdivided(positions: &[DVec3], triangles: &[[u32; 3]]) -> Indexed {
     )
 }
 
+/// One step of Catmull–Clark subdivision (Catmull and Clark 1978; the boundary and crease rules
+/// of Blender's Subdivision Surface): per triangle a face point at its centroid and three quads,
+/// each cut along its shorter diagonal as an exporter triangulates them; edge points the mean
+/// of their ends and faces' points, old vertices moved to `(Q + 2R + (n − 3)v) / n` — a
+/// smoothing that moves the surface. Edges of one face or of more than two are creases.
+pub fn catmull_clark(positions: &[DVec3], triangles: &[[u32; 3]]) -> Indexed {
+    let (list, of) = edges(triangles);
+    let centre = |t: &[u32; 3]| t.iter().map(|&v| positions[v as usize]).sum::<DVec3>() / 3.0;
+    let face_points: Vec<DVec3> = triangles.iter().map(centre).collect();
+    let middle = |(x, y): (u32, u32)| (positions[x as usize] + positions[y as usize]) / 2.0;
+    // Per old vertex: its edges' midpoints and faces' points (sums and counts), and its
+    // crease neighbours.
+    let mut around = vec![(DVec3::ZERO, 0.0); positions.len()];
+    for (t, f) in triangles.iter().zip(&face_points) {
+        for &v in t {
+            around[v as usize].0 += *f;
+            around[v as usize].1 += 1.0;
+        }
+    }
+    let mut middles = vec![(DVec3::ZERO, 0.0); positions.len()];
+    let mut creases: Vec<Vec<u32>> = vec![Vec::new(); positions.len()];
+    for &((x, y), ref fs) in &list {
+        for (v, w) in [(x, y), (y, x)] {
+            middles[v as usize].0 += middle((x, y));
+            middles[v as usize].1 += 1.0;
+            if fs.len() != 2 {
+                creases[v as usize].push(w);
+            }
+        }
+    }
+    let p = |v: u32| positions[v as usize];
+    let mut out: Vec<DVec3> = (0..positions.len())
+        .map(|v| match creases[v].as_slice() {
+            [] if middles[v].1 > 0.0 => {
+                let n = middles[v].1;
+                let (q, r) = (around[v].0 / around[v].1, middles[v].0 / n);
+                (q + 2.0 * r + (n - 3.0) * positions[v]) / n
+            }
+            &[a, b] => positions[v] * 0.75 + (p(a) + p(b)) * 0.125,
+            _ => positions[v],
+        })
+        .collect();
+    out.extend(list.iter().map(|&((x, y), ref fs)| match fs[..] {
+        [f, g] => (p(x) + p(y) + face_points[f as usize] + face_points[g as usize]) / 4.0,
+        _ => middle((x, y)),
+    }));
+    let (n, first_face) = (
+        positions.len() as u32,
+        (positions.len() + list.len()) as u32,
+    );
+    out.extend(&face_points);
+    let mut faces = Vec::with_capacity(6 * triangles.len());
+    for (f, (&[a, b, c], e)) in triangles.iter().zip(&of).enumerate() {
+        let [ab, bc, ca] = e.map(|e| n + e as u32);
+        let centre = first_face + f as u32;
+        for [o, next, previous] in [[a, ab, ca], [b, bc, ab], [c, ca, bc]] {
+            let length = |x: u32, y: u32| out[x as usize].distance(out[y as usize]);
+            faces.extend(if length(o, centre) <= length(next, previous) {
+                [[o, next, centre], [o, centre, previous]]
+            } else {
+                [[o, next, previous], [next, centre, previous]]
+            });
+        }
+    }
+    (out, faces)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -624,6 +694,26 @@ mod tests {
         assert!(closed(&smooth));
         // Loop pulls the old vertices inside the sphere.
         assert!(smooth.0[..input.0.len()].iter().all(|p| p.length() < 0.999));
+    }
+
+    #[test]
+    fn catmull_clark_makes_six_triangles_of_each_and_shrinks_the_sphere() {
+        let input = sphere(8, 16);
+        let smooth = catmull_clark(&input.0, &input.1);
+        let edges = edges(&input.1).0.len();
+        assert_eq!(smooth.0.len(), input.0.len() + edges + input.1.len());
+        assert_eq!(smooth.1.len(), 6 * input.1.len());
+        assert!(closed(&smooth));
+        // Every face point lies inside the sphere, and the old vertices are pulled inside.
+        assert!(smooth.0.iter().all(|p| p.length() < 1.0 + 1e-12));
+        assert!(smooth.0[..input.0.len()].iter().all(|p| p.length() < 0.999));
+        // Consistently oriented: each directed edge used once.
+        let mut directed = std::collections::HashSet::new();
+        for t in &smooth.1 {
+            for k in 0..3 {
+                assert!(directed.insert((t[k], t[(k + 1) % 3])));
+            }
+        }
     }
 
     #[test]

@@ -3,8 +3,8 @@
 //! the same class for one (`docs/results/duplicates/`). Every model of a collection (or of one
 //! of its halves, [`super::study::halves`]) gets one copy of each family of disguises
 //! ([`Disguise`], made by [`super::disguise`]): re-exported, re-triangulated, simplified by
-//! three kinds of simplifier, subdivided linearly — each expected to be found — and Loop
-//! subdivided, a smoothed asset expected *not* to be. Each copy is also rotated, scaled by 25.4
+//! three kinds of simplifier, subdivided linearly — each expected to be found — and Loop or
+//! Catmull–Clark subdivided, a smoothed asset expected *not* to be. Each copy is also rotated, scaled by 25.4
 //! or 0.1, moved and written in another format.
 //!
 //! Copies are written as files and read back, as an upload would be. The search then runs as
@@ -63,10 +63,12 @@ pub enum Disguise {
     Midpoint,
     /// One step of Loop's smoothing subdivision: another asset.
     Loop,
+    /// One step of Catmull–Clark's, its quads triangulated: another asset.
+    CatmullClark,
 }
 
 impl Disguise {
-    pub const ALL: [Disguise; 7] = [
+    pub const ALL: [Disguise; 8] = [
         Disguise::Reexported,
         Disguise::Retriangulated,
         Disguise::EdgeCollapse,
@@ -74,6 +76,7 @@ impl Disguise {
         Disguise::Clustered,
         Disguise::Midpoint,
         Disguise::Loop,
+        Disguise::CatmullClark,
     ];
 
     /// The weakest evidence a copy so disguised should be found with (stronger is right
@@ -87,7 +90,7 @@ impl Disguise {
             | Disguise::EdgeCollapse
             | Disguise::Quadric
             | Disguise::Clustered => Some(Evidence::SameShape),
-            Disguise::Loop => None,
+            Disguise::Loop | Disguise::CatmullClark => None,
         }
     }
 
@@ -100,6 +103,7 @@ impl Disguise {
             Disguise::Clustered => "clustered",
             Disguise::Midpoint => "midpoint",
             Disguise::Loop => "loop",
+            Disguise::CatmullClark => "catmull_clark",
         }
     }
 
@@ -116,6 +120,7 @@ impl Disguise {
             Disguise::Clustered => disguise::clustered(p, t, target),
             Disguise::Midpoint => disguise::midpoint(p, t),
             Disguise::Loop => disguise::loop_subdivided(p, t),
+            Disguise::CatmullClark => disguise::catmull_clark(p, t),
         }
     }
 }

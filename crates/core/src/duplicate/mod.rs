@@ -160,7 +160,15 @@ pub fn judge(
     let Alignment { rotated, mirrored } = alignment(Reach::new(params, spacing), &|d| {
         within(&d.surfaces) <= 1.0 || (forgivable(d) && within(&d.kept) <= 1.0)
     });
-    verdict(Evidence::SameShape, rotated).or_else(|| verdict(Evidence::Mirrored, mirrored))
+    // One mesh edited — the coarser the finer's own triangles less some parts, or the same
+    // mesh with vertices moved — is another design, whatever its mirror image (a symmetric
+    // model's fits as well) says.
+    let edited = |d: &Deviation| d.added > params.added || d.moved > params.moved;
+    if edited(&rotated) {
+        return None;
+    }
+    verdict(Evidence::SameShape, rotated)
+        .or_else(|| (!edited(&mirrored)).then(|| verdict(Evidence::Mirrored, mirrored))?)
 }
 
 /// Two models found to be one asset.

@@ -1,5 +1,6 @@
-//! Whether a mesh is another's triangles each split in four: one step of a subdivision
-//! (midpoint, Loop's, the butterfly's), told by connectivity alone, whatever the positions.
+//! Whether a mesh is one subdivision step of another: its triangles each split in four
+//! (midpoint, Loop's, the butterfly's), told by connectivity alone, or a Catmull–Clark step
+//! (Blender's Subdivision Surface, OpenSubdiv) with its quads triangulated, told by counts.
 //!
 //! A smoothing subdivision is another asset (#38), but one step of it on a mesh of a few
 //! thousand vertices moves the surface less, in lengths of the coarser mesh's edges, than a
@@ -107,6 +108,30 @@ pub fn is_split(fine: &[[u32; 3]], (vertices, triangles): (usize, usize)) -> boo
         && astray as f64 <= ASTRAY * middles as f64
 }
 
+/// Whether a mesh of `fine` = (vertices, triangles) has the counts of one Catmull–Clark step
+/// of `coarse` (its vertex count and triangles), its quads triangulated: a vertex per old
+/// vertex, per edge and per triangle, and six triangles per triangle, exactly.
+///
+/// Counts alone, because the triangulation hides the quads: each may be cut along either
+/// diagonal, so no local pattern is left to walk as [`is_split`] does, and recovering the quads
+/// is a search. Exact counts are what a simplification meets only by coincidence: a sixth of
+/// the triangles to the triangle, and (the vertex count follows on a closed mesh) the same
+/// Euler characteristic. A linear step of the same topology (Blender's "Simple") keeps the
+/// surface, which the caller checks.
+pub fn is_catmull_clark(
+    (vertices, triangles): (usize, usize),
+    coarse: (usize, &[[u32; 3]]),
+) -> bool {
+    let (coarse_vertices, coarse) = coarse;
+    let edges: rustc_hash::FxHashSet<(u32, u32)> = coarse
+        .iter()
+        .flat_map(|t| [0, 1, 2].map(|k| (t[k].min(t[(k + 1) % 3]), t[k].max(t[(k + 1) % 3]))))
+        .collect();
+    !coarse.is_empty()
+        && triangles == 6 * coarse.len()
+        && vertices == coarse_vertices + edges.len() + coarse.len()
+}
+
 /// Gives face `f` its `role` and its piece what follows (a middle's three neighbours are
 /// corners at their vertex off the shared edge; a corner's neighbour across the edge off its
 /// old vertex is the middle, across the other two a corner at the same vertex). Undoes what
@@ -165,7 +190,7 @@ fn assign(mesh: &Mesh, roles: &mut [Option<Role>], (f, role): (usize, Role)) -> 
 
 #[cfg(test)]
 mod tests {
-    use super::is_split;
+    use super::{is_catmull_clark, is_split};
     use std::collections::HashMap;
 
     /// An octahedron, closed; a square of two triangles, with a boundary; and the
@@ -238,5 +263,60 @@ mod tests {
         shuffled.reverse();
         shuffled.iter_mut().for_each(|t| t.rotate_left(1));
         assert!(is_split(&shuffled, (vertices, triangles.len())));
+    }
+
+    /// One Catmull–Clark step's topology: per triangle a face point and three quads on its
+    /// edges' points, each quad cut along the diagonal `cut` picks.
+    fn catmull_clark(
+        vertices: usize,
+        triangles: &[[u32; 3]],
+        cut: impl Fn(usize) -> bool,
+    ) -> Vec<[u32; 3]> {
+        let mut points = HashMap::new();
+        let mut point = |a: u32, b: u32| {
+            let next = (vertices + points.len()) as u32;
+            *points.entry((a.min(b), a.max(b))).or_insert(next)
+        };
+        let edge_points: Vec<[u32; 3]> = triangles
+            .iter()
+            .map(|&[a, b, c]| [point(a, b), point(b, c), point(c, a)])
+            .collect();
+        let first_face = (vertices + points.len()) as u32;
+        let mut quads = 0;
+        let mut out = Vec::new();
+        for (f, (&[a, b, c], &[ab, bc, ca])) in triangles.iter().zip(&edge_points).enumerate() {
+            let centre = first_face + f as u32;
+            for [o, next, previous] in [[a, ab, ca], [b, bc, ab], [c, ca, bc]] {
+                out.extend(if cut(quads) {
+                    [[o, next, centre], [o, centre, previous]]
+                } else {
+                    [[o, next, previous], [next, centre, previous]]
+                });
+                quads += 1;
+            }
+        }
+        out
+    }
+
+    #[test]
+    fn catmull_clark_is_told_by_its_counts_whatever_the_diagonals() {
+        for (vertices, triangles) in meshes() {
+            let coarse = (vertices, &triangles[..]);
+            let cuts: [fn(usize) -> bool; 3] = [|_| true, |_| false, |q| q % 3 == 1];
+            for cut in cuts {
+                let fine = catmull_clark(vertices, &triangles, cut);
+                let fine_vertices = *fine.iter().flatten().max().unwrap() as usize + 1;
+                assert!(is_catmull_clark((fine_vertices, fine.len()), coarse));
+                // One vertex more or less, or a triangle fewer, is not one.
+                assert!(!is_catmull_clark((fine_vertices - 1, fine.len()), coarse));
+                assert!(!is_catmull_clark((fine_vertices, fine.len() - 2), coarse));
+                // Nor is a split in four, nor the mesh itself.
+                assert!(!is_split(&fine, (vertices, triangles.len())));
+            }
+            let once = split(vertices, &triangles);
+            let once_vertices = *once.iter().flatten().max().unwrap() as usize + 1;
+            assert!(!is_catmull_clark((once_vertices, once.len()), coarse));
+            assert!(!is_catmull_clark((vertices, triangles.len()), coarse));
+        }
     }
 }

@@ -1,9 +1,10 @@
 // The salient page: API calls and the DOM. The 3D view lives in view.js.
 //
-// Integrators and the browser test rely on: #query-file, #method, #tag, #status (class
+// Integrators and the browser test rely on: #query-file, #mode, #method, #tag, #status (class
 // "error" on errors, "busy" while a request runs), .result[data-model-id][data-rank],
 // .model[data-model-id], buttons .similar and .download, #key-panel / #api-key / #key-save,
-// and #view (data-models, data-matches once drawn).
+// and #view (data-models, data-matches, data-result, data-placed for a part laid on its
+// result, data-drawn once a frame of them is drawn).
 
 import { View, parseGlb, PALETTE } from '/page/view.js';
 
@@ -17,6 +18,7 @@ const METHOD_NAMES = { hybrid: 'hybrid', ecc: 'ECC', d2: 'D2', lfd: 'LFD', geode
 const state = {
   query: null, // the last query: { kind: 'upload', files, label } or { kind: 'model', id, label }
   hits: [],
+  partial: false, // whether the hits are a part search's (mode=partial)
   selected: null, // id of the selected result
   run: 0, // bumped by every query, so that late answers of older ones are dropped
   controller: null,
@@ -216,8 +218,11 @@ function card(grid, model, hit) {
     c.dataset.rank = String(hit.rank);
     c.tabIndex = 0;
     c.append(el('span', 'rank', `#${hit.rank}`));
-    const d = el('div', 'distance', 'distance ');
-    d.append(el('b', '', hit.distance.toFixed(3)));
+    // A part search ranks the models it registered the part into by how far it stays off
+    // their surface (residual), the others by their features' fit.
+    const registered = typeof hit.residual === 'number';
+    const d = el('div', 'distance', registered ? 'residual ' : 'distance ');
+    d.append(el('b', '', (registered ? hit.residual : hit.distance).toFixed(3)));
     body.append(d);
   } else {
     body.append(el('div', 'meta', `${model.triangles} triangles · ${model.features} salient features`));
@@ -314,7 +319,9 @@ async function runQuery(query) {
   const run = ++state.run;
   const params = new URLSearchParams({ k: String(K), explain: 'true' });
   const method = $('#method').value, tag = $('#tag').value.trim();
-  if (method) params.set('method', method); // none: the server's default
+  // A part search has its own score (no method); a stored model is always a whole one.
+  if (query.kind === 'upload' && partMode()) params.set('mode', 'partial');
+  else if (method) params.set('method', method); // none: the server's default
   if (tag) params.set('tag', tag);
   setStatus(query.kind === 'upload' ? 'Extracting salient features…' : `Searching for models like ${query.label}…`, 'busy');
   $('#results').classList.add('stale');
@@ -343,6 +350,7 @@ async function runQuery(query) {
 
 function showResults(data, query, elapsed) {
   state.hits = data.results;
+  state.partial = data.mode === 'partial';
   state.selected = null;
   const grid = $('#results');
   grid.classList.remove('stale');
@@ -351,8 +359,10 @@ function showResults(data, query, elapsed) {
   const what = query.kind === 'upload' ? query.label : `models like ${query.label}`;
   if (!data.results.length) grid.append(el('p', 'empty', `Nothing matched ${what}.`));
   const t = data.timings || {};
-  $('#results-summary').textContent = `${data.results.length} for ${what} · ${METHOD_NAMES[data.method] || data.method}`
-    + ` · ${data.evaluated} compared, ${data.pruned} pruned · ${data.query_features} query features`;
+  $('#results-summary').textContent = `${data.results.length} for ${what} · `
+    + (state.partial ? `as a part · ${data.results.filter((h) => h.placement).length} registered`
+      : `${METHOD_NAMES[data.method] || data.method} · ${data.evaluated} compared, ${data.pruned} pruned`)
+    + ` · ${data.query_features} query features`;
   setStatus(`Found ${data.results.length} models in ${ms(t.total_ms ?? elapsed)}`
     + (t.extract_ms ? ` (extraction ${ms(t.extract_ms)}).` : '.')
     + (data.results.length ? ' Click a result to compare it in 3D.' : ''), 'ok');
@@ -405,10 +415,14 @@ async function selectHit(id) {
   try {
     const mesh = await modelMesh(id);
     if (state.selected !== id) return;
-    view.setResult(mesh, `Result: ${hit.name || id}`, hit.explanation?.matches || []);
+    const label = `Result: ${hit.name || id}`;
+    if (hit.placement && state.query?.mesh) view.setPlaced(mesh, label, hit.placement);
+    else view.setResult(mesh, label, hit.explanation?.matches || []);
     $('#view').dataset.result = id;
     const n = hit.explanation?.matches?.length || 0;
-    note(n ? `${n} matched salient regions: line width and opacity show the matched mass.` : 'No match explanation for this result.');
+    note(hit.placement ? 'In orange: the part where it fits in this model.'
+      : state.partial ? 'The part was not registered into this model: it ranks by its salient features\' fit.'
+        : n ? `${n} matched salient regions: line width and opacity show the matched mass.` : 'No match explanation for this result.');
   } catch (err) {
     if (state.selected === id) note(`No 3D preview: ${err instanceof ApiError ? describe(err) : err.message}`);
   }
@@ -418,8 +432,13 @@ function showDetail(hit) {
   $('#detail').hidden = false;
   $('#detail-name').textContent = `#${hit.rank} ${hit.name || hit.id}`;
   const d = hit.explanation?.distances || {};
-  $('#detail-distances').textContent = Object.entries(METHOD_NAMES)
-    .map(([k, name]) => `${name} ${typeof d[k] === 'number' ? d[k].toFixed(3) : '—'}`).join(' · ');
+  $('#detail-distances').textContent = state.partial
+    ? (typeof hit.residual === 'number'
+      ? `registered: residual ${hit.residual.toFixed(4)} of the part's size`
+      : `not registered: features' fit ${hit.distance.toFixed(3)}`)
+      + (hit.part_scale ? ` · the part ${Math.round(hit.part_scale * 100)}% of the model's size` : '')
+    : Object.entries(METHOD_NAMES)
+      .map(([k, name]) => `${name} ${typeof d[k] === 'number' ? d[k].toFixed(3) : '—'}`).join(' · ');
   const list = $('#detail-matches');
   list.replaceChildren();
   const matches = [...(hit.explanation?.matches || [])].sort((a, b) => b.mass - a.mass).slice(0, 10);
@@ -516,6 +535,12 @@ zone.addEventListener('drop', (e) => {
 // A file dropped beside the zone must not make the browser navigate to it.
 for (const type of ['dragover', 'drop']) window.addEventListener(type, (e) => e.preventDefault());
 
+// The method applies to whole models only; a part search runs again on the last upload.
+function partMode() { return $('#mode').value === 'partial'; }
+$('#mode').addEventListener('change', () => {
+  $('#method').disabled = partMode();
+  if (state.query?.kind === 'upload') runQuery(state.query);
+});
 $('#method').addEventListener('change', () => { if (state.query) runQuery(state.query); });
 $('#tag').addEventListener('change', () => {
   state.lib = { pages: [null], page: 0, next: null };

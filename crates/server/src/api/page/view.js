@@ -10,6 +10,7 @@ export const PALETTE = [
 ];
 export const SURFACE = [0.78, 0.78, 0.8];
 const POINT_RED = [0.9, 0.08, 0.08];
+const PIECE = [0.96, 0.5, 0.12]; // a part search's piece, laid where it fits in a result
 const BACKGROUND = [0.973, 0.976, 0.984];
 const NO_REGION = 65535;
 const OFFSET = 1.1; // query at x = -1.1, result at x = +1.1, each fitted into a unit sphere
@@ -102,6 +103,24 @@ export function parseGlb(buffer) {
 // A point in a model's own coordinates (salient points, explanations) turned as its mesh was.
 export function upright(mesh, p) {
   return mesh.up === 'z' ? [p[0], p[2], -p[1]] : p;
+}
+
+// The query's piece where a part search registered it in `model` (placement: the 4 × 4
+// column-major matrix taking the piece's coordinates as uploaded to the model's as stored):
+// its preview's positions turned back to those coordinates, placed, then turned upright as the
+// model's mesh was; framed by the model (`fit`), one colour.
+function placed(piece, model, m) {
+  const own = (p) => (piece.up === 'z' ? [p[0], -p[2], p[1]] : p); // upright's inverse
+  const positions = new Float32Array(piece.positions.length);
+  for (let i = 0; i < positions.length; i += 3) {
+    const [x, y, z] = own(piece.positions.subarray(i, i + 3));
+    const p = [0, 1, 2].map((r) => m[r] * x + m[4 + r] * y + m[8 + r] * z + m[12 + r]);
+    positions.set(upright(model, p), i);
+  }
+  const mesh = { positions, indices: piece.indices, regions: null, points: [], up: model.up,
+    colors: Float32Array.from({ length: positions.length }, (_, i) => PIECE[i % 3]) };
+  mesh.fit = { ...prepare(mesh), center: model.fit.center, radius: model.fit.radius };
+  return mesh;
 }
 
 // Area-weighted vertex normals, and the bounding box's centre and half diagonal (the fit).
@@ -260,15 +279,31 @@ export class View {
 
   // The query with its own region colours; clears the result.
   setQuery(mesh, label) {
+    this.query = mesh ? { mesh, label } : null;
     this.matches = [];
+    this.overlay = false;
     this.setModel(1, null);
     this.setModel(0, mesh, label, (r) => PALETTE[r % PALETTE.length]);
+  }
+
+  // A part search's result with the query's piece laid where it was registered (placement,
+  // see placed()): the model alone and grey, the piece on it in orange.
+  setPlaced(mesh, label, placement) {
+    if (!this.query) return this.setResult(mesh, label);
+    this.matches = [];
+    this.overlay = true;
+    this.setModel(1, mesh, label, () => null);
+    this.setModel(0, placed(this.query.mesh, mesh, placement), null, () => null);
   }
 
   // A result beside the query. matches: the hit's explanation ({query, result, mass,
   // query_position, result_position}). The result's region j takes the colour of the query
   // region it received most mass from, so matched regions look alike; unmatched ones stay grey.
   setResult(mesh, label, matches = []) {
+    if (this.overlay) { // the piece laid on the last result: the query again, beside
+      this.overlay = false;
+      this.setModel(0, this.query.mesh, this.query.label, (r) => PALETTE[r % PALETTE.length]);
+    }
     const best = new Map();
     for (const m of matches) if (!(best.get(m.result)?.mass >= m.mass)) best.set(m.result, m);
     this.matches = mesh ? matches : [];
@@ -276,16 +311,19 @@ export class View {
   }
 
   // Placement: the query alone is centred; with a result, the two sit at -1.1 and +1.1.
-  // On a tall canvas (a phone held upright) the query goes above the result instead.
+  // On a tall canvas (a phone held upright) the query goes above the result instead. A piece
+  // laid on its result (overlay) shares the result's place.
   layout() {
     const [q, r] = this.models;
+    const apart = q && r && !this.overlay;
     const at = (sign) => (this.stacked ? [0, -sign * OFFSET, 0] : [sign * OFFSET, 0, 0]);
-    if (q) q.offset = r ? at(-1) : [0, 0, 0];
-    if (r) r.offset = q ? at(1) : [0, 0, 0];
+    if (q) q.offset = apart ? at(-1) : [0, 0, 0];
+    if (r) r.offset = apart ? at(1) : [0, 0, 0];
     for (const m of this.models) if (m) m.points = m.mesh.points.map((p) => this.place(m, p));
     this.buildLines();
     this.canvas.dataset.models = String(this.models.filter(Boolean).length);
     if (!r) delete this.canvas.dataset.result; // app.js names the result it shows
+    if (this.overlay) this.canvas.dataset.placed = '1'; else delete this.canvas.dataset.placed;
     delete this.canvas.dataset.drawn;
     this.redraw();
   }
@@ -377,7 +415,7 @@ export class View {
     const models = this.models.filter(Boolean);
     // Frame the scene: one unit sphere, or two side by side (or stacked). Slightly tighter
     // than the spheres, which a mesh seldom fills.
-    const aspect = w / h, fov = 0.7, tan = Math.tan(fov / 2), two = models.length === 2;
+    const aspect = w / h, fov = 0.7, tan = Math.tan(fov / 2), two = models.length === 2 && !this.overlay;
     const ex = two && !this.stacked ? OFFSET + 1 : 1, ey = two && this.stacked ? OFFSET + 1 : 1;
     const dist = (Math.max(ey / tan, ex / (tan * aspect)) * 0.9 + 0.7) * this.zoom;
     const eye = [dist * Math.cos(this.pitch) * Math.sin(this.yaw), dist * Math.sin(this.pitch),
@@ -389,6 +427,11 @@ export class View {
     gl.uniformMatrix4fv(prog.u_vp, false, vp);
     gl.uniform3fv(prog.u_eye, eye);
     for (const m of models) {
+      // A laid piece is the model's own surface: drawn a little nearer, so that it shows.
+      if (this.overlay && m === this.models[0]) {
+        gl.enable(gl.POLYGON_OFFSET_FILL);
+        gl.polygonOffset(-1, -4);
+      } else gl.disable(gl.POLYGON_OFFSET_FILL);
       gl.uniform3fv(prog.u_center, m.fit.center);
       gl.uniform1f(prog.u_scale, 1 / m.fit.radius);
       gl.uniform3fv(prog.u_offset, m.offset);
@@ -398,6 +441,7 @@ export class View {
       gl.bindBuffer(gl.ELEMENT_ARRAY_BUFFER, m.index);
       gl.drawElements(gl.TRIANGLES, m.count, m.indexType, 0);
     }
+    gl.disable(gl.POLYGON_OFFSET_FILL);
     this.disableAttribs(prog);
     // Salient points: red markers, pulled slightly towards the eye so the surface does not hide them.
     const pts = models.flatMap((m) => m.points);
@@ -455,8 +499,8 @@ export class View {
   placeLabels(vp, w, h, dpr) {
     this.models.forEach((m, i) => {
       const el = this.labels[i];
-      el.hidden = !m;
-      if (!m) return;
+      el.hidden = !m?.label;
+      if (el.hidden) return;
       el.textContent = m.label;
       const [x, y, z] = [m.offset[0], m.offset[1] + 1.05, 0];
       const cx = vp[0] * x + vp[4] * y + vp[8] * z + vp[12], cy = vp[1] * x + vp[5] * y + vp[9] * z + vp[13];
