@@ -545,27 +545,27 @@ impl Shape {
     /// A sub-mesh re-tessellates nothing, so what it lacks is parts `fine` adds, attached or
     /// not, where a simplification's shortfall is its chords.
     fn edited_from(&self, fine: &Shape, onto: impl Fn(Vec3) -> Vec3, scale: f32) -> (f64, f64) {
-        let corners = |mut t: [u32; 3]| {
-            t.sort_unstable();
-            t
-        };
-        let own: FxHashSet<[u32; 3]> = fine
-            .surface
-            .triangles()
-            .iter()
-            .map(|&t| corners(t))
-            .collect();
         let (ours, theirs) = (self.surface.vertices(), fine.surface.vertices());
-        // The finer vertex a coarser one is, if any: the nearest corner of the triangle it
-        // lies on, within `within` of its mean edge length.
-        let same = |v: u32, onto: &dyn Fn(Vec3) -> Vec3, scale: f32, within: f32| {
-            let p = onto(ours[v as usize]);
+        // The finer vertex nearest `p` (the nearest corner of the triangle it lies nearest),
+        // and how far, in the coarser vertex `v`'s edges scaled by `scale`.
+        let nearest = |p: Vec3, v: u32, scale: f32| {
             let (_, t) = fine.surface.distance_and_triangle(p);
             let (w, d) = fine.surface.triangles()[t as usize]
                 .map(|w| (w, theirs[w as usize].distance(p)))
                 .into_iter()
-                .min_by(|a, b| a.1.total_cmp(&b.1))?;
-            (d <= within * self.edges[v as usize] * scale).then_some(w)
+                .fold(
+                    (u32::MAX, f32::INFINITY),
+                    |a, b| if b.1 < a.1 { b } else { a },
+                );
+            (
+                w,
+                d / (self.edges[v as usize] * scale).max(f32::MIN_POSITIVE),
+            )
+        };
+        // The finer vertex a coarser one is, if any: the nearest, within `within` edges.
+        let same = |v: u32, onto: &dyn Fn(Vec3) -> Vec3, scale: f32, within: f32| {
+            let (w, edges) = nearest(onto(ours[v as usize]), v, scale);
+            (edges <= within).then_some(w)
         };
         let triangles = self.surface.triangles();
         let checked: Vec<[u32; 3]> = triangles
@@ -601,20 +601,21 @@ impl Shape {
         let moved =
             if ours.len() == theirs.len() && triangles.len() == fine.surface.triangles().len() {
                 (0..ours.len() as u32)
-                    .map(|v| {
-                        // The nearest corner of the triangle it lies nearest.
-                        let p = exact.apply(ours[v as usize]);
-                        let (_, t) = fine.surface.distance_and_triangle(p);
-                        let d = fine.surface.triangles()[t as usize]
-                            .map(|w| theirs[w as usize].distance(p))
-                            .into_iter()
-                            .fold(f32::INFINITY, f32::min);
-                        f64::from(d / (self.edges[v as usize] * exact.scale).max(f32::MIN_POSITIVE))
-                    })
+                    .map(|v| f64::from(nearest(exact.apply(ours[v as usize]), v, exact.scale).1))
                     .fold(0.0, f64::max)
             } else {
                 0.0
             };
+        let corners = |mut t: [u32; 3]| {
+            t.sort_unstable();
+            t
+        };
+        let own: FxHashSet<[u32; 3]> = fine
+            .surface
+            .triangles()
+            .iter()
+            .map(|&t| corners(t))
+            .collect();
         let shared = checked
             .iter()
             .filter(|t| {
