@@ -657,4 +657,19 @@ fn one_mesh_with_leaves_moved_is_another_design_and_quantised_is_not() {
         verify(&original, &shape(&quantised), &params).is_some(),
         "quantised"
     );
+    // As many vertices and triangles, none moved: re-triangulated, it is the same shape.
+    let welded = weld(&mesh, 1e-6).unwrap();
+    let (positions, triangles) = disguise::retriangulated(&welded.positions, &welded.triangles);
+    let flipped = shapes::transformed(
+        &RawMesh {
+            positions,
+            triangles,
+        },
+        shapes::random_motion(9),
+    );
+    assert_eq!(
+        verify(&original, &shape(&flipped), &params).map(|v| v.evidence),
+        Some(Evidence::SameShape),
+        "re-triangulated"
+    );
 }

@@ -115,9 +115,9 @@ pub struct Deviation {
     /// triangle and ten parts more, its car m174 is m175 and 4 % more, its tree m54 is m49 and
     /// 17 % more leaves: other designs). 0 otherwise, and where the vertices were not fitted.
     pub added: f64,
-    /// When both meshes have as many vertices and triangles: the farthest a vertex of the
-    /// coarser lies from the finer's nearest vertex once the two are fitted vertex on vertex,
-    /// in its mean edge lengths. One mesh with vertices edited (a morph, a pose, a part moved:
+    /// When both meshes have as many vertices and triangles and the fit pairs at least half
+    /// the vertices exactly: the farthest a vertex of the coarser lies from the finer's nearest
+    /// vertex once the two are fitted vertex on vertex, in its mean edge lengths. One mesh with vertices edited (a morph, a pose, a part moved:
     /// CAPOD's pianos m124 and m125 share 334 of 362 vertices) is another design however near
     /// the surfaces stay; a re-triangulation or a quantised export moves none. 0 otherwise.
     pub moved: f64,
@@ -598,11 +598,19 @@ impl Shape {
             }
             exact = crate::register::fit(&from, &to, true);
         }
+        // Only where the fit paired most vertices exactly: one that slid (a smooth blob, or a
+        // copy re-triangulated) would take every vertex for moved.
         let moved =
             if ours.len() == theirs.len() && triangles.len() == fine.surface.triangles().len() {
-                (0..ours.len() as u32)
-                    .map(|v| f64::from(nearest(exact.apply(ours[v as usize]), v, exact.scale).1))
-                    .fold(0.0, f64::max)
+                let off: Vec<f32> = (0..ours.len() as u32)
+                    .map(|v| nearest(exact.apply(ours[v as usize]), v, exact.scale).1)
+                    .collect();
+                let paired = off.iter().filter(|&&d| d <= SAME_VERTEX).count();
+                if 2 * paired >= off.len() {
+                    f64::from(off.into_iter().fold(0.0, f32::max))
+                } else {
+                    0.0
+                }
             } else {
                 0.0
             };
