@@ -121,6 +121,22 @@ postgres_only! {
             .collect();
         cones.sort();
         assert_eq!(cones, ["cone0", "cone2", "tube3"]);
+
+        // A tag's rows can be read through the tags' index, without a scan of the table (what
+        // the planner takes for a rare tag of a large catalogue).
+        let (client, connection) = tokio_postgres::connect(&url, tokio_postgres::NoTls)
+            .await
+            .unwrap();
+        tokio::spawn(connection);
+        client.batch_execute("SET enable_seqscan = off").await.unwrap();
+        let plan: Vec<String> = client
+            .query("EXPLAIN SELECT id FROM model_vectors WHERE tags @> ARRAY['cone']", &[])
+            .await
+            .unwrap()
+            .iter()
+            .map(|row| row.get(0))
+            .collect();
+        assert!(plan.iter().any(|line| line.contains("model_vectors_tags")), "{plan:?}");
     }
 }
 
