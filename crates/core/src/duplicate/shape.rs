@@ -15,6 +15,8 @@
 use glamx::{DMat3, DVec3, Mat3, Vec3};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
+use rstar::primitives::GeomWithData;
+use rstar::RTree;
 use rustc_hash::FxHashSet;
 
 use crate::mesh::weld::weld;
@@ -546,17 +548,25 @@ impl Shape {
     /// not, where a simplification's shortfall is its chords.
     fn edited_from(&self, fine: &Shape, onto: impl Fn(Vec3) -> Vec3, scale: f32) -> (f64, f64) {
         let (ours, theirs) = (self.surface.vertices(), fine.surface.vertices());
-        // The finer vertex nearest `p` (the nearest corner of the triangle it lies nearest),
-        // and how far, in the coarser vertex `v`'s edges scaled by `scale`.
+        // The finer vertices in a tree: the corners of the triangle a point lies nearest are
+        // not its nearest vertex where a vertex lies on another triangle (a T-junction, or
+        // parts overlapping: CAPOD's pianos), which took identical meshes for edited ones.
+        let tree = RTree::bulk_load(
+            theirs
+                .iter()
+                .zip(0u32..)
+                .map(|(p, w)| GeomWithData::new(p.to_array(), w))
+                .collect(),
+        );
+        // The finer vertex nearest `p`, and how far, in the coarser vertex `v`'s edges scaled
+        // by `scale`.
         let nearest = |p: Vec3, v: u32, scale: f32| {
-            let (_, t) = fine.surface.distance_and_triangle(p);
-            let (w, d) = fine.surface.triangles()[t as usize]
-                .map(|w| (w, theirs[w as usize].distance(p)))
-                .into_iter()
-                .fold(
-                    (u32::MAX, f32::INFINITY),
-                    |a, b| if b.1 < a.1 { b } else { a },
-                );
+            let w = tree
+                .nearest_neighbor(p.to_array())
+                .map_or(u32::MAX, |w| w.data);
+            let d = theirs
+                .get(w as usize)
+                .map_or(f32::INFINITY, |&q| q.distance(p));
             (
                 w,
                 d / (self.edges[v as usize] * scale).max(f32::MIN_POSITIVE),
@@ -781,6 +791,14 @@ mod tests {
             positions: raw.positions.iter().map(|&p| f(p)).collect(),
             triangles: raw.triangles.clone(),
         }
+    }
+
+    /// The bars meet at T-junctions (a bar's corner on another's face), where the corners of
+    /// the triangle a vertex lies on are not its nearest vertex: a mesh is no edit of itself.
+    #[test]
+    fn a_mesh_with_t_junctions_moves_no_vertex_against_itself() {
+        let shape = Shape::new(&lopsided(), 1e-6).unwrap();
+        assert_eq!(shape.edited_from(&shape, |p| p, 1.0), (0.0, 0.0));
     }
 
     #[test]
