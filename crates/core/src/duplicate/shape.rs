@@ -561,8 +561,11 @@ impl Shape {
         // The finer vertex nearest `p`, and how far, in the coarser vertex `v`'s edges scaled
         // by `scale`.
         let nearest = |p: Vec3, v: u32, scale: f32| {
-            let w = tree
-                .nearest_neighbor(p.to_array())
+            // A degenerate fit may put a vertex at no finite place: it is no vertex's.
+            let w = p
+                .is_finite()
+                .then(|| tree.nearest_neighbor(p.to_array()))
+                .flatten()
                 .map_or(u32::MAX, |w| w.data);
             let d = theirs
                 .get(w as usize)
@@ -799,6 +802,14 @@ mod tests {
     fn a_mesh_with_t_junctions_moves_no_vertex_against_itself() {
         let shape = Shape::new(&lopsided(), 1e-6).unwrap();
         assert_eq!(shape.edited_from(&shape, |p| p, 1.0), (0.0, 0.0));
+    }
+
+    /// A degenerate fit that puts the vertices nowhere finite pairs none of them (the
+    /// R-tree's search cannot order a NaN).
+    #[test]
+    fn a_fit_to_no_finite_place_pairs_no_vertex() {
+        let shape = Shape::new(&lopsided(), 1e-6).unwrap();
+        assert_eq!(shape.edited_from(&shape, |_| Vec3::NAN, 1.0), (0.0, 0.0));
     }
 
     #[test]
