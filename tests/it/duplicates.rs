@@ -4,7 +4,7 @@
 
 use axum::http::StatusCode;
 use glam::{DMat4, DQuat, DVec3};
-use salient_core::duplicate::{judge, verify, Evidence, Shape};
+use salient_core::duplicate::{judge, verify, Evidence, Reach, Shape};
 use salient_core::mesh::load::NoResources;
 use salient_core::mesh::weld::weld;
 use salient_core::mesh::write::Export;
@@ -671,5 +671,40 @@ fn one_mesh_with_leaves_moved_is_another_design_and_quantised_is_not() {
         verify(&original, &shape(&flipped), &params).map(|v| v.evidence),
         Some(Evidence::SameShape),
         "re-triangulated"
+    );
+}
+
+#[test]
+fn a_computer_with_a_part_moved_across_is_another_design_and_its_mirror_image_is_not() {
+    // CAPOD's desktop computers m76 and m77 are one mesh (the same 760 faces) with a part of
+    // 46 of the 396 vertices moved across: their surfaces mirror each other, and in the mirror
+    // the vertices pair but for that part's. A copy of m76 reflected, turned and moved is
+    // its mirror image.
+    let load = |name: &str| {
+        load_bytes(
+            &fixture(name),
+            salient_core::mesh::Format::Obj,
+            &NoResources,
+            &Limits::default(),
+        )
+        .unwrap()
+    };
+    let params = DuplicateParams::default();
+    let m76 = load("capod_desktop_computer_m76.obj");
+    let (a, b) = (shape(&m76), shape(&load("capod_desktop_computer_m77.obj")));
+    let mirror = a
+        .align(&b, Reach::new(&params, a.coarser(&b)), |_| true)
+        .mirrored;
+    assert!(mirror.surfaces.absolute.mean < 0.01, "{mirror:?}");
+    assert!(mirror.moved > 1.0, "{mirror:?}");
+    assert_eq!(verify(&a, &b, &params), None);
+    assert_eq!(verify(&b, &a, &params), None);
+    let reflected = shapes::transformed(
+        &m76,
+        shapes::random_motion(5) * DMat4::from_scale(DVec3::new(-1.0, 1.0, 1.0)),
+    );
+    assert_eq!(
+        verify(&a, &shape(&reflected), &params).map(|v| v.evidence),
+        Some(Evidence::Mirrored)
     );
 }

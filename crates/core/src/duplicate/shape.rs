@@ -47,6 +47,9 @@ const SUB_MESH: f64 = 0.95;
 /// neighbours lie about an edge away).
 const SAME_VERTEX: f32 = 0.01;
 const PAIRED: [f32; 5] = [0.5, 0.5, 0.25, 0.1, 0.05];
+/// A fit that puts at least this share of one mesh's vertices on the other's exactly paired
+/// them: less, and it slid along the surface (a smooth blob) ([`Deviation::moved`]).
+const ONE_MESH: f64 = 0.5;
 /// Coarser triangles checked for the sub-mesh share, spread over the mesh.
 const SUB_MESH_CHECKED: usize = 2048;
 /// Two second moments within this ratio leave the principal axes in their plane arbitrary
@@ -118,10 +121,12 @@ pub struct Deviation {
     /// 17 % more leaves: other designs). 0 otherwise, and where the vertices were not fitted.
     pub added: f64,
     /// When both meshes have as many vertices and triangles and the fit pairs at least half
-    /// the vertices exactly: the farthest a vertex of the coarser lies from the finer's nearest
-    /// vertex once the two are fitted vertex on vertex, in its mean edge lengths. One mesh with vertices edited (a morph, a pose, a part moved:
-    /// CAPOD's pianos m124 and m125 share 334 of 362 vertices) is another design however near
-    /// the surfaces stay; a re-triangulation or a quantised export moves none. 0 otherwise.
+    /// the vertices exactly ([`ONE_MESH`]): the farthest a vertex of the coarser lies from the
+    /// finer's nearest vertex once the two are fitted vertex on vertex (in the mirror too), in
+    /// its mean edge lengths. One mesh with vertices edited (a morph, a pose, a part moved:
+    /// CAPOD's pianos m124 and m125 share 334 of 362 vertices, desktop computers m76 and m77
+    /// 350 of 396) is another design however near the surfaces stay; a re-triangulation or a
+    /// quantised export moves none. 0 otherwise.
     pub moved: f64,
 }
 
@@ -388,9 +393,9 @@ impl Shape {
                 .min_by(|a, b| (a.0.surfaces.absolute.mean).total_cmp(&b.0.surfaces.absolute.mean))
                 .map_or(Deviation::NONE, |(mut deviation, motion)| {
                     if surfaces_pass(&deviation) {
-                        let (vertices, (added, moved)) = self.vertex_fit(other, motion);
+                        let (vertices, edit) = self.vertex_fit(other, motion);
                         (deviation.vertices, deviation.added, deviation.moved) =
-                            (vertices, added, moved);
+                            (vertices, edit.added, edit.moved);
                     }
                     deviation
                 })
@@ -516,7 +521,7 @@ impl Shape {
     /// faces it replaced meet, a clustering at the mean of nearby vertices) while its faces
     /// cut chords, so these stay a small fraction of an edge however coarse the copy; a morph
     /// or another pose moves vertices regardless of their edges.
-    fn vertex_fit(&self, other: &Shape, onto: Motion) -> (Spread, (f64, f64)) {
+    fn vertex_fit(&self, other: &Shape, onto: Motion) -> (Spread, Edit) {
         let (coarse, fine, start) = if self.vertices() <= other.vertices() {
             (self, other, onto)
         } else {
@@ -543,10 +548,10 @@ impl Shape {
     }
 
     /// What `fine` did to `self` (the coarser, put in `fine`'s frame by `onto`, which scales by
-    /// `scale`) if it is an edit of the same mesh: ([`Deviation::added`], [`Deviation::moved`]).
+    /// `scale`) if it is an edit of the same mesh.
     /// A sub-mesh re-tessellates nothing, so what it lacks is parts `fine` adds, attached or
     /// not, where a simplification's shortfall is its chords.
-    fn edited_from(&self, fine: &Shape, onto: impl Fn(Vec3) -> Vec3, scale: f32) -> (f64, f64) {
+    fn edited_from(&self, fine: &Shape, onto: impl Fn(Vec3) -> Vec3, scale: f32) -> Edit {
         let (ours, theirs) = (self.surface.vertices(), fine.surface.vertices());
         // The finer vertices in a tree: the corners of the triangle a point lies nearest are
         // not its nearest vertex where a vertex lies on another triangle (a T-junction, or
@@ -558,9 +563,13 @@ impl Shape {
                 .map(|(p, w)| GeomWithData::new(p.to_array(), w))
                 .collect(),
         );
-        // The finer vertex nearest `p`, and how far, in the coarser vertex `v`'s edges scaled
-        // by `scale`.
-        let nearest = |p: Vec3, v: u32, scale: f32| {
+        // Our vertices in `fine`'s frame: a mirror image is reflected here, so that the vertex
+        // fits below, proper motions, pair it too.
+        let placed: Vec<Vec3> = ours.iter().map(|&p| onto(p)).collect();
+        // The finer vertex nearest our vertex `v` once moved by `m`, and how far, in `v`'s
+        // edges.
+        let nearest = |v: u32, m: &Motion| {
+            let p = m.apply(placed[v as usize]);
             // A degenerate fit may put a vertex at no finite place: it is no vertex's.
             let w = p
                 .is_finite()
@@ -570,14 +579,12 @@ impl Shape {
             let d = theirs
                 .get(w as usize)
                 .map_or(f32::INFINITY, |&q| q.distance(p));
-            (
-                w,
-                d / (self.edges[v as usize] * scale).max(f32::MIN_POSITIVE),
-            )
+            let edge = self.edges[v as usize] * scale * m.scale;
+            (w, d / edge.max(f32::MIN_POSITIVE))
         };
         // The finer vertex a coarser one is, if any: the nearest, within `within` edges.
-        let same = |v: u32, onto: &dyn Fn(Vec3) -> Vec3, scale: f32, within: f32| {
-            let (w, edges) = nearest(onto(ours[v as usize]), v, scale);
+        let same = |v: u32, m: &Motion, within: f32| {
+            let (w, edges) = nearest(v, m);
             (edges <= within).then_some(w)
         };
         let triangles = self.surface.triangles();
@@ -586,47 +593,41 @@ impl Shape {
             .step_by(triangles.len().div_ceil(SUB_MESH_CHECKED))
             .copied()
             .collect();
+        let one_mesh =
+            ours.len() == theirs.len() && triangles.len() == fine.surface.triangles().len();
         // The surfaces' fit leaves vertices off along the surface (a third of an edge on a
         // smooth blob, 0.08 in CAPOD's m47 in m48): fits on the vertices it pairs, each
         // pairing nearer, make a sub-mesh's pairs exact (ICP on the vertices).
-        let pairs =
-            |onto: &dyn Fn(Vec3) -> Vec3, scale: f32, within: f32| -> (Vec<Vec3>, Vec<Vec3>) {
-                checked
-                    .iter()
-                    .flatten()
-                    .filter_map(|&v| {
-                        same(v, onto, scale, within).map(|w| (ours[v as usize], theirs[w as usize]))
-                    })
-                    .unzip()
-            };
-        let (from, to) = pairs(&onto, scale, PAIRED[0]);
-        if from.len() < 3 {
-            return (0.0, 0.0);
-        }
-        let mut exact = crate::register::fit(&from, &to, true);
-        for &within in &PAIRED[1..] {
-            let (from, to) = pairs(&|p| exact.apply(p), exact.scale, within);
+        let mut exact = Motion::IDENTITY;
+        for within in PAIRED {
+            let (from, to): (Vec<Vec3>, Vec<Vec3>) = checked
+                .iter()
+                .flatten()
+                .filter_map(|&v| {
+                    same(v, &exact, within).map(|w| (placed[v as usize], theirs[w as usize]))
+                })
+                .unzip();
             if from.len() < 3 {
-                return (0.0, 0.0);
+                return Edit::NONE;
             }
             exact = crate::register::fit(&from, &to, true);
         }
-        // Only where the fit paired most vertices exactly: one that slid (a smooth blob, or a
-        // copy re-triangulated) would take every vertex for moved.
-        let moved =
-            if ours.len() == theirs.len() && triangles.len() == fine.surface.triangles().len() {
-                let off: Vec<f32> = (0..ours.len() as u32)
-                    .map(|v| nearest(exact.apply(ours[v as usize]), v, exact.scale).1)
-                    .collect();
-                let paired = off.iter().filter(|&&d| d <= SAME_VERTEX).count();
-                if 2 * paired >= off.len() {
-                    f64::from(off.into_iter().fold(0.0, f32::max))
-                } else {
-                    0.0
-                }
+        // `moved` only where the fit paired the vertices: one that slid (a smooth blob) would
+        // take every vertex for moved.
+        let moved = if one_mesh {
+            let off: Vec<f32> = (0..ours.len() as u32)
+                .map(|v| nearest(v, &exact).1)
+                .collect();
+            let paired =
+                off.iter().filter(|&&d| d <= SAME_VERTEX).count() as f64 / off.len() as f64;
+            if paired >= ONE_MESH {
+                f64::from(off.into_iter().fold(0.0, f32::max))
             } else {
                 0.0
-            };
+            }
+        } else {
+            0.0
+        };
         let corners = |mut t: [u32; 3]| {
             t.sort_unstable();
             t
@@ -640,20 +641,36 @@ impl Shape {
         let shared = checked
             .iter()
             .filter(|t| {
-                let [a, b, c] = t.map(|v| same(v, &|p| exact.apply(p), exact.scale, SAME_VERTEX));
+                let [a, b, c] = t.map(|v| same(v, &exact, SAME_VERTEX));
                 matches!((a, b, c), (Some(a), Some(b), Some(c)) if own.contains(&corners([a, b, c])))
             })
             .count() as f64
             / checked.len() as f64;
-        if shared < SUB_MESH {
-            return (0.0, moved);
-        }
-        let scale = f64::from(exact.scale);
-        (
-            (1.0 - self.area * scale * scale / fine.area).max(0.0),
+        let scale = f64::from(scale * exact.scale);
+        Edit {
+            added: if shared < SUB_MESH {
+                0.0
+            } else {
+                (1.0 - self.area * scale * scale / fine.area).max(0.0)
+            },
             moved,
-        )
+        }
     }
+}
+
+/// What the vertex fit found one mesh did to the other ([`Deviation::added`],
+/// [`Deviation::moved`]).
+#[derive(Debug, PartialEq)]
+struct Edit {
+    added: f64,
+    moved: f64,
+}
+
+impl Edit {
+    const NONE: Edit = Edit {
+        added: 0.0,
+        moved: 0.0,
+    };
 }
 
 /// Each triangle's longest edge and each vertex's mean edge length.
@@ -801,7 +818,7 @@ mod tests {
     #[test]
     fn a_mesh_with_t_junctions_moves_no_vertex_against_itself() {
         let shape = Shape::new(&lopsided(), 1e-6).unwrap();
-        assert_eq!(shape.edited_from(&shape, |p| p, 1.0), (0.0, 0.0));
+        assert_eq!(shape.edited_from(&shape, |p| p, 1.0), Edit::NONE);
     }
 
     /// A degenerate fit that puts the vertices nowhere finite pairs none of them (the
@@ -809,7 +826,7 @@ mod tests {
     #[test]
     fn a_fit_to_no_finite_place_pairs_no_vertex() {
         let shape = Shape::new(&lopsided(), 1e-6).unwrap();
-        assert_eq!(shape.edited_from(&shape, |_| Vec3::NAN, 1.0), (0.0, 0.0));
+        assert_eq!(shape.edited_from(&shape, |_| Vec3::NAN, 1.0), Edit::NONE);
     }
 
     #[test]
