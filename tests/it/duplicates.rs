@@ -708,3 +708,46 @@ fn a_computer_with_a_part_moved_across_is_another_design_and_its_mirror_image_is
         Some(Evidence::Mirrored)
     );
 }
+
+#[test]
+fn a_pair_aligns_alike_whichever_comes_first() {
+    // The service remembers a verdict by the unordered pair: asked either way, the alignment
+    // must be the same. A re-triangulated copy has as many vertices as its model, which once
+    // made the first of the two the one moved by ICP.
+    let params = DuplicateParams::default();
+    let families: [Family; 2] = [|p, t, _| disguise::retriangulated(p, t), disguise::quadric];
+    for name in [
+        "capod/horse_m145.obj",
+        "capod/chair_m35.obj",
+        "capod/hand_m95.obj",
+    ] {
+        let mesh = load_bytes(
+            &fixture(name),
+            salient_core::mesh::Format::Obj,
+            &NoResources,
+            &Limits::default(),
+        )
+        .unwrap();
+        for family in families {
+            let (a, b) = (shape(&mesh), shape(&disguised(&mesh, family)));
+            let reach = Reach::new(&params, a.coarser(&b));
+            let (forth, back) = (
+                a.align(&b, reach, |_| true).rotated,
+                b.align(&a, reach, |_| true).rotated,
+            );
+            let near = |x: f64, y: f64| (x - y).abs() <= 1e-3 * x.abs().max(y.abs()) + 1e-4;
+            for (x, y) in [
+                (forth.surfaces.absolute.mean, back.surfaces.absolute.mean),
+                (forth.surfaces.absolute.max, back.surfaces.absolute.max),
+                (forth.vertices.p90, back.vertices.p90),
+            ] {
+                assert!(near(x, y), "{name}: {forth:?} against {back:?}");
+            }
+            assert_eq!(
+                verify(&a, &b, &params).map(|v| v.evidence),
+                verify(&b, &a, &params).map(|v| v.evidence),
+                "{name}"
+            );
+        }
+    }
+}
