@@ -47,12 +47,20 @@ impl Surface {
         (self.closest(p) - p).length()
     }
 
+    /// The distance of `p` from the surface, or `cap` when it is farther (or not finite): the
+    /// search prunes every part of the surface beyond `cap`, so a far point costs little.
+    pub fn capped_distance(&self, p: Vec3, cap: f32) -> f32 {
+        self.0
+            .project_local_point_with_max_dist(p, false, cap)
+            .map_or(cap, |projection| (projection.point - p).length().min(cap))
+    }
+
     /// The mean distance of `points` from the surface, each capped at `cap` so that a few far
     /// points do not outweigh a good alignment elsewhere.
     pub fn mean_distance(&self, points: impl Iterator<Item = Vec3>, cap: f32) -> f32 {
         let (mut sum, mut count) = (0.0, 0usize);
         for p in points {
-            sum += self.distance(p).min(cap);
+            sum += self.capped_distance(p, cap);
             count += 1;
         }
         sum / count.max(1) as f32
@@ -63,11 +71,30 @@ impl Surface {
     /// scale too when `scaling`.
     pub fn icp(&self, points: &[Vec3], rounds: usize, scaling: bool) -> Motion {
         let mut motion = Motion::IDENTITY;
+        let mut targets: Vec<Vec3> = Vec::new();
         for _ in 0..rounds {
-            let targets: Vec<Vec3> = points
+            let matched: Vec<Vec3> = points
                 .iter()
-                .map(|&p| self.closest(motion.apply(p)))
+                .enumerate()
+                .map(|(i, &p)| {
+                    let p = motion.apply(p);
+                    // The last round's match lies on the surface, so the closest point now is
+                    // no farther than it: a bound that prunes most of the search once ICP
+                    // moves little. A hair wider, lest rounding leave that match out.
+                    targets
+                        .get(i)
+                        .and_then(|&last| {
+                            let within = p.distance(last) * (1.0 + 1e-4) + f32::MIN_POSITIVE;
+                            self.0.project_local_point_with_max_dist(p, false, within)
+                        })
+                        .map_or_else(|| self.closest(p), |projection| projection.point)
+                })
                 .collect();
+            // The same matches give the same motion again, round after round.
+            if matched == targets {
+                break;
+            }
+            targets = matched;
             motion = fit(points, &targets, scaling);
         }
         motion
@@ -165,6 +192,47 @@ pub fn signed_permutations() -> impl Iterator<Item = Mat3> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Bounding each round's search by the last match, and stopping once the matches repeat,
+    /// must give the motion that every round's full search gives.
+    #[test]
+    fn icp_with_bounded_searches_is_plain_icp() {
+        // A bumpy height field, and points off it: some of its vertices turned and moved.
+        let n = 24;
+        let height = |x: f32, y: f32| 0.3 * (3.0 * x).sin() * (2.0 * y).cos();
+        let positions: Vec<Vec3> = (0..n * n)
+            .map(|i| {
+                let (x, y) = ((i % n) as f32 / n as f32, (i / n) as f32 / n as f32);
+                Vec3::new(x, y, height(x, y))
+            })
+            .collect();
+        let triangles: Vec<[u32; 3]> = (0..n - 1)
+            .flat_map(|j| (0..n - 1).map(move |i| (i, j)))
+            .flat_map(|(i, j)| {
+                let v = (j * n + i) as u32;
+                let n = n as u32;
+                [[v, v + 1, v + n + 1], [v, v + n + 1, v + n]]
+            })
+            .collect();
+        let surface = Surface::new(positions.clone(), triangles).unwrap();
+        let turn = Mat3::from_axis_angle(Vec3::new(0.2, 1.0, 0.4).normalize(), 0.15);
+        let points: Vec<Vec3> = positions
+            .iter()
+            .step_by(7)
+            .map(|&p| turn * p * 1.1 + Vec3::new(0.05, -0.03, 0.02))
+            .collect();
+        for (rounds, scaling) in [(1, false), (10, true), (40, true)] {
+            let mut plain = Motion::IDENTITY;
+            for _ in 0..rounds {
+                let targets: Vec<Vec3> = points
+                    .iter()
+                    .map(|&p| surface.closest(plain.apply(p)))
+                    .collect();
+                plain = fit(&points, &targets, scaling);
+            }
+            assert_eq!(surface.icp(&points, rounds, scaling), plain);
+        }
+    }
 
     #[test]
     fn fit_recovers_a_motion_and_a_scale() {

@@ -224,6 +224,9 @@ pub struct Family {
     pub aligned_local: Distribution,
     /// The 90th percentile of the coarser file's vertices' distances, in edge lengths.
     pub vertices: Distribution,
+    /// Copies whose verdict with their model depends on which comes first (each is verified
+    /// both ways): the service caches a verdict by the unordered pair, so any is a defect.
+    pub one_way: Vec<String>,
     /// Every copy, farthest from its model first.
     pub worst: Vec<Aligned>,
 }
@@ -500,7 +503,7 @@ pub fn run(
             .into_iter()
             .map(|min| level(&files, &members, &links, min))
             .collect();
-            let checked: Vec<(Measured, f64, f64, &str, bool)> = files
+            let checked: Vec<(Measured, f64, f64, &str, bool, bool)> = files
                 .par_iter()
                 .enumerate()
                 .filter(|(_, f)| f.disguise == Some(disguise))
@@ -513,12 +516,17 @@ pub fn run(
                         &described[c].0.d2,
                     );
                     let kept = described[c].1.vertices() as f64 / described[o].1.vertices() as f64;
+                    let forth = measure(&described[c].1, &described[o].1, p);
+                    let back = measure(&described[o].1, &described[c].1, p);
+                    let evidence = |m: &Measured| m.verdict.map(|v| v.evidence);
+                    let one_way = evidence(&forth) != evidence(&back);
                     (
-                        measure(&described[c].1, &described[o].1, p),
+                        forth,
                         d2,
                         kept,
                         f.name.as_str(),
                         candidate.contains(&pair),
+                        one_way,
                     )
                 })
                 .collect();
@@ -557,6 +565,11 @@ pub fn run(
                 aligned: of(&|d| d.surfaces.absolute.p99),
                 aligned_local: of(&|d| d.surfaces.local.p99),
                 vertices: of(&|d| d.vertices.p90),
+                one_way: checked
+                    .iter()
+                    .filter(|c| c.5)
+                    .map(|c| c.3.to_string())
+                    .collect(),
                 worst,
             }
         })
@@ -813,6 +826,7 @@ impl DuplicatesReport {
             "aligned p99, RMS radii: median / p95 / max",
             "aligned p99, triangle sizes: median / p95 / max",
             "vertices p90, edges: median / p95 / max",
+            "verdict depends on the order",
         ]);
         let three = |d: &Distribution| format!("{:.4} / {:.4} / {:.4}", d.median, d.p95, d.max);
         for f in &self.families {
@@ -829,6 +843,11 @@ impl DuplicatesReport {
                 three(&f.aligned),
                 three(&f.aligned_local),
                 three(&f.vertices),
+                if f.one_way.is_empty() {
+                    "none".to_string()
+                } else {
+                    f.one_way.join(", ")
+                },
             ]);
         }
         let mut wrong = Table::new(["a", "b", "same class", "evidence", "score"]);
@@ -873,7 +892,9 @@ impl DuplicatesReport {
              (`similarity.duplicates`): `{}`. {} candidate pairs verified. Byte-identical \
              models of the collection count as one model: {}; models of one design \
              (`SAME_DESIGN`), as a `same_shape` pair: {}.\n\n## Pairs found, per family\n\n{}\n\
-             ## Each copy against its model\n\n{}\n## Candidate filters\n\n{}\n\
+             ## Each copy against its model\n\nVerified copy first, and model first for \
+             the last column (a verdict is cached by the unordered pair, so it must not depend \
+             on the order).\n\n{}\n## Candidate filters\n\n{}\n\
              ## Hard negatives\n\nCandidate pairs of different models, 99th percentile of the \
              aligned distances in triangle sizes: {} pairs, smallest {:.4}, median {:.4}.\n\n\
              False links:\n\n{}\nSeconds: copies {:.1}, signatures and shapes {:.1}, search {:.1}.\n",

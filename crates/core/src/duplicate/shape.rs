@@ -63,6 +63,9 @@ const TURNS: [f32; 5] = [15.0, 30.0, 45.0, 60.0, 75.0];
 const SMALL_PIECE: f64 = 0.01;
 /// Starts of each handedness refined by ICP.
 const REFINED: usize = 2;
+/// Samples of each shape a start is glanced at before it is scored in full, and added at a
+/// time after ([`Shape::best_starts`]).
+const GLANCE: usize = 8;
 /// Distances above this many RMS radii count as this much while choosing starts, so that a
 /// few far samples do not outweigh a good alignment elsewhere.
 const CAP: f32 = 0.5;
@@ -379,31 +382,10 @@ impl Shape {
         reach: Reach,
         surfaces_pass: impl Fn(&Deviation) -> bool,
     ) -> Alignment {
-        // Each start scored by half the samples of each shape, each moved onto the other: as
-        // cheap as the first's samples alone were.
-        let (ours, theirs) = (
-            &self.samples[..(COARSE / 2).min(self.samples.len())],
-            &other.samples[..(COARSE / 2).min(other.samples.len())],
-        );
-        let mut starts: Vec<(f32, Mat3)> = self
-            .starts(other)
-            .into_iter()
-            .map(|s| {
-                let forth = other
-                    .surface
-                    .mean_distance(ours.iter().map(|&x| s * x), CAP);
-                let back =
-                    (self.surface).mean_distance(theirs.iter().map(|&x| s.transpose() * x), CAP);
-                (forth + back, s)
-            })
-            .collect();
-        starts.sort_by(|a, b| a.0.total_cmp(&b.0));
         let best = |proper: bool| {
-            starts
-                .iter()
-                .filter(|(_, s)| (s.determinant() > 0.0) == proper)
-                .take(REFINED)
-                .map(|&(_, s)| {
+            self.best_starts(other, proper)
+                .into_iter()
+                .map(|s| {
                     let motion = self.refined(other, s);
                     (self.deviation(other, motion, reach), motion)
                 })
@@ -421,6 +403,66 @@ impl Shape {
             rotated: best(true),
             mirrored: best(false),
         }
+    }
+
+    /// The [`REFINED`] starts of one handedness ([`Shape::starts`]) whose samples lie nearest
+    /// the other surface: half of [`COARSE`] samples of each shape, each moved onto the other
+    /// (their mean distances' sum, capped at [`CAP`]; ties to the earlier start). Every start
+    /// is first glanced at on a few samples (a lower bound of its score: distances are not
+    /// negative and the rest are added on in the same order), and only those whose bound
+    /// does not exceed the best scores so far are scored in full, a few samples at a time:
+    /// the same starts as scoring all of them, at a fraction of the queries.
+    fn best_starts(&self, other: &Shape, proper: bool) -> Vec<Mat3> {
+        let (ours, theirs) = (
+            &self.samples[..(COARSE / 2).min(self.samples.len())],
+            &other.samples[..(COARSE / 2).min(other.samples.len())],
+        );
+        let (n_ours, n_theirs) = (ours.len().max(1) as f32, theirs.len().max(1) as f32);
+        // Sums of the capped distances of samples `from..to` of each side, added to `sums`.
+        let add = |s: Mat3, (forth, back): (f32, f32), from: usize, to: usize| {
+            let side = |surface: &crate::register::Surface, points: &[Vec3], m: Mat3, sum| {
+                points[from.min(points.len())..to.min(points.len())]
+                    .iter()
+                    .fold(sum, |sum, &x| sum + surface.capped_distance(m * x, CAP))
+            };
+            (
+                side(&other.surface, ours, s, forth),
+                side(&self.surface, theirs, s.transpose(), back),
+            )
+        };
+        let score = |(forth, back): (f32, f32)| forth / n_ours + back / n_theirs;
+        let mut glanced: Vec<(f32, usize, Mat3, (f32, f32))> = self
+            .starts(other)
+            .into_iter()
+            .enumerate()
+            .filter(|(_, s)| (s.determinant() > 0.0) == proper)
+            .map(|(i, s)| {
+                let sums = add(s, (0.0, 0.0), 0, GLANCE);
+                (score(sums), i, s, sums)
+            })
+            .collect();
+        glanced.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+        let mut best: Vec<(f32, usize, Mat3)> = Vec::with_capacity(REFINED + 1);
+        let samples = ours.len().max(theirs.len());
+        for (bound, i, s, mut sums) in glanced {
+            let beaten = |bound: f32, best: &[(f32, usize, Mat3)]| {
+                best.len() == REFINED && best.last().is_some_and(|w| bound > w.0)
+            };
+            if beaten(bound, &best) {
+                break;
+            }
+            let mut done = GLANCE;
+            while done < samples && !beaten(score(sums), &best) {
+                sums = add(s, sums, done, done + GLANCE);
+                done += GLANCE;
+            }
+            if done >= samples {
+                best.push((score(sums), i, s));
+                best.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+                best.truncate(REFINED);
+            }
+        }
+        best.into_iter().map(|(_, _, s)| s).collect()
     }
 
     /// The rotations (and reflections) of `self`'s canonical frame onto `other`'s to start
@@ -599,17 +641,29 @@ impl Shape {
             let edge = self.edges[v as usize] * scale * m.scale;
             (w, d / edge.max(f32::MIN_POSITIVE))
         };
-        // The finer vertex a coarser one is, if any: the nearest, within `within` edges.
-        let same = |v: u32, m: &Motion, within: f32| {
-            let (w, edges) = nearest(v, m);
-            (edges <= within).then_some(w)
-        };
         let triangles = self.surface.triangles();
         let checked: Vec<[u32; 3]> = triangles
             .iter()
             .step_by(triangles.len().div_ceil(SUB_MESH_CHECKED))
             .copied()
             .collect();
+        // Each corner of the checked triangles' nearest finer vertex once moved by `m`, found
+        // once per vertex (a vertex is a corner of about six triangles), by vertex.
+        let mut corners: Vec<u32> = checked.iter().flatten().copied().collect();
+        corners.sort_unstable();
+        corners.dedup();
+        let nearest_corners = |m: &Motion| {
+            let mut found = vec![(u32::MAX, f32::INFINITY); ours.len()];
+            for &v in &corners {
+                found[v as usize] = nearest(v, m);
+            }
+            found
+        };
+        // The finer vertex a coarser one is, if any: the nearest, within `within` edges.
+        let same = |found: &[(u32, f32)], v: u32, within: f32| {
+            let (w, edges) = found[v as usize];
+            (edges <= within).then_some(w)
+        };
         let one_mesh =
             ours.len() == theirs.len() && triangles.len() == fine.surface.triangles().len();
         // The surfaces' fit leaves vertices off along the surface (a third of an edge on a
@@ -617,11 +671,12 @@ impl Shape {
         // pairing nearer, make a sub-mesh's pairs exact (ICP on the vertices).
         let mut exact = Motion::IDENTITY;
         for within in PAIRED {
+            let found = nearest_corners(&exact);
             let (from, to): (Vec<Vec3>, Vec<Vec3>) = checked
                 .iter()
                 .flatten()
                 .filter_map(|&v| {
-                    same(v, &exact, within).map(|w| (placed[v as usize], theirs[w as usize]))
+                    same(&found, v, within).map(|w| (placed[v as usize], theirs[w as usize]))
                 })
                 .unzip();
             if from.len() < 3 {
@@ -655,10 +710,11 @@ impl Shape {
             .iter()
             .map(|&t| corners(t))
             .collect();
+        let found = nearest_corners(&exact);
         let shared = checked
             .iter()
             .filter(|t| {
-                let [a, b, c] = t.map(|v| same(v, &exact, SAME_VERTEX));
+                let [a, b, c] = t.map(|v| same(&found, v, SAME_VERTEX));
                 matches!((a, b, c), (Some(a), Some(b), Some(c)) if own.contains(&corners([a, b, c])))
             })
             .count() as f64
@@ -864,6 +920,47 @@ mod tests {
             alignment.rotated.surfaces.absolute.max < 1e-3,
             "{alignment:?}"
         );
+    }
+
+    /// Pruning by a few samples' bound must not change which starts are refined: the same
+    /// as scoring every start on all its samples and sorting (ties to the earlier start).
+    #[test]
+    fn the_starts_refined_are_those_all_samples_of_every_start_choose() {
+        let raw = lopsided();
+        let shape = Shape::new(&raw, 1e-6).unwrap();
+        let turn = DQuat::from_axis_angle(glam::DVec3::new(1.0, 2.0, 0.5).normalize(), 1.1);
+        let others = [
+            moved(&raw, |p| turn * p),
+            moved(&raw, |p| glam::DVec3::new(-p.x, p.y, p.z)),
+            moved(&raw, |p| turn * (p * glam::DVec3::new(1.0, 0.4, 1.7))),
+        ];
+        for other in &others {
+            let other = Shape::new(other, 1e-6).unwrap();
+            let half = COARSE / 2;
+            let mut all: Vec<(f32, Mat3)> = shape
+                .starts(&other)
+                .into_iter()
+                .map(|s| {
+                    let forth = (other.surface)
+                        .mean_distance(shape.samples[..half].iter().map(|&x| s * x), CAP);
+                    let back = (shape.surface).mean_distance(
+                        other.samples[..half].iter().map(|&x| s.transpose() * x),
+                        CAP,
+                    );
+                    (forth + back, s)
+                })
+                .collect();
+            all.sort_by(|a, b| a.0.total_cmp(&b.0));
+            for proper in [true, false] {
+                let expected: Vec<Mat3> = all
+                    .iter()
+                    .filter(|(_, s)| (s.determinant() > 0.0) == proper)
+                    .take(REFINED)
+                    .map(|&(_, s)| s)
+                    .collect();
+                assert_eq!(shape.best_starts(&other, proper), expected);
+            }
+        }
     }
 
     #[test]
