@@ -29,14 +29,16 @@ enum Command {
     /// Vary W, the penalty, K, flat_max and D_g one at a time; tune on half of each class,
     /// judge on the other half.
     Study(StudyArgs),
-    /// Mix two disguised copies of every model into the collection (re-exported in another
-    /// format, unit and place; remeshed, rotated and scaled) and measure how well the
-    /// near-duplicate search groups them: precision and recall of duplicate pairs per
-    /// evidence level.
+    /// Make one copy of every model of a half per family of disguises (re-exported in another
+    /// format, unit and place; re-triangulated, simplified four ways, subdivided three ways;
+    /// rotated and scaled), mix each family's copies into the half alone and measure how well
+    /// the near-duplicate search links them: precision and recall per family and evidence
+    /// level, and each copy verified against its model both ways.
     Duplicates(DuplicatesArgs),
-    /// Cut three parts from every model of a half (each a ball of 30–50 % of its radius around
-    /// a random surface point) and query it against the whole collection as a part and as a whole
-    /// model: how often its source ranks first and within the top 5, and its class first.
+    /// Cut parts from every model of a half (three balls of 30–50 % of its radius around
+    /// random surface points, and one part each of 5, 15, 30 and 50 % of its surface) and
+    /// search each against the whole collection as `mode=partial` serves it: how often its
+    /// source ranks first and within the top 5, and its class first, per part size.
     Partial(PartialArgs),
     /// Choose the hybrid's weights, scales and penalty power on the tuning halves of the
     /// collections together; judge them on the held-out halves.

@@ -133,9 +133,12 @@ fn every_common_simplifier_and_linear_subdivision_keep_the_shape_and_smoothing_a
     let evidence = |original: &RawMesh, copy: &RawMesh| {
         verify(&shape(original), &shape(copy), &params).map(|v| v.evidence)
     };
-    let families: [(&str, Family); 5] = [
+    let families: [(&str, Family); 6] = [
         ("edge collapse", disguise::edge_collapse),
         ("quadric, optimal placement", disguise::quadric),
+        ("fast quadric (pyfqmr's)", |p, t, _| {
+            disguise::fast_quadric(p, t, t.len() / 2)
+        }),
         ("vertex clustering", disguise::clustered),
         ("re-triangulated", |p, t, _| disguise::retriangulated(p, t)),
         ("midpoint subdivision", |p, t, _| disguise::midpoint(p, t)),

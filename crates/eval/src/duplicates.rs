@@ -57,6 +57,9 @@ pub enum Disguise {
     EdgeCollapse,
     /// Garland–Heckbert quadric collapse with optimal placement, to 40–60 %.
     Quadric,
+    /// Forstmann's fast quadric simplification (pyfqmr, fast_simplification), to 40–60 % of
+    /// the triangles: thin parts and small pieces collapse.
+    FastQuadric,
     /// Vertex clustering on a grid, to 40–60 %.
     Clustered,
     /// Every triangle split in four at its edges' midpoints.
@@ -68,11 +71,12 @@ pub enum Disguise {
 }
 
 impl Disguise {
-    pub const ALL: [Disguise; 8] = [
+    pub const ALL: [Disguise; 9] = [
         Disguise::Reexported,
         Disguise::Retriangulated,
         Disguise::EdgeCollapse,
         Disguise::Quadric,
+        Disguise::FastQuadric,
         Disguise::Clustered,
         Disguise::Midpoint,
         Disguise::Loop,
@@ -89,6 +93,7 @@ impl Disguise {
             Disguise::Retriangulated
             | Disguise::EdgeCollapse
             | Disguise::Quadric
+            | Disguise::FastQuadric
             | Disguise::Clustered => Some(Evidence::SameShape),
             Disguise::Loop | Disguise::CatmullClark => None,
         }
@@ -100,6 +105,7 @@ impl Disguise {
             Disguise::Retriangulated => "retriangulated",
             Disguise::EdgeCollapse => "edge_collapse",
             Disguise::Quadric => "quadric",
+            Disguise::FastQuadric => "fast_quadric",
             Disguise::Clustered => "clustered",
             Disguise::Midpoint => "midpoint",
             Disguise::Loop => "loop",
@@ -108,7 +114,7 @@ impl Disguise {
     }
 
     /// The copy of a welded mesh, before it is moved; `fraction` of its vertices kept by
-    /// the simplifiers.
+    /// the simplifiers (of its triangles by the fast quadric one, which counts those).
     fn make(self, welded: &salient_core::mesh::weld::Welded, fraction: f64) -> Indexed {
         let (p, t) = (&welded.positions[..], &welded.triangles[..]);
         let target = ((p.len() as f64 * fraction) as usize).max(4);
@@ -117,6 +123,9 @@ impl Disguise {
             Disguise::Retriangulated => disguise::retriangulated(p, t),
             Disguise::EdgeCollapse => disguise::edge_collapse(p, t, target),
             Disguise::Quadric => disguise::quadric(p, t, target),
+            Disguise::FastQuadric => {
+                disguise::fast_quadric(p, t, ((t.len() as f64 * fraction) as usize).max(4))
+            }
             Disguise::Clustered => disguise::clustered(p, t, target),
             Disguise::Midpoint => disguise::midpoint(p, t),
             Disguise::Loop => disguise::loop_subdivided(p, t),
