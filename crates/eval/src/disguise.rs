@@ -416,6 +416,9 @@ pub fn fast_quadric(positions: &[DVec3], triangles: &[[u32; 3]], target: usize) 
         }
         t.error[3] = t.error[0].min(t.error[1]).min(t.error[2]);
     };
+    // `Simplify.h`'s normalising, NaN for a zero vector as there: a degenerate triangle's
+    // NaN quadric freezes its vertices, and a NaN direction folds nothing over.
+    let unit = |v: DVec3| v / v.length();
     let triangle_count = faces.len();
     let mut deleted_triangles = 0;
     for iteration in 0..100 {
@@ -470,7 +473,7 @@ pub fn fast_quadric(positions: &[DVec3], triangles: &[[u32; 3]], target: usize) 
                 }
                 for t in &mut faces {
                     let [a, b, c] = t.v.map(|v| vertices[v].p);
-                    t.normal = (b - a).cross(c - a).normalize_or_zero();
+                    t.normal = unit((b - a).cross(c - a));
                     let q = Quadric::plane(t.normal, a, 1.0);
                     for &v in &t.v {
                         vertices[v].q.add(&q);
@@ -517,12 +520,11 @@ pub fn fast_quadric(positions: &[DVec3], triangles: &[[u32; 3]], target: usize) 
                             deleted[k] = true;
                             continue;
                         }
-                        let d1 = (vertices[id1].p - p).normalize_or_zero();
-                        let d2 = (vertices[id2].p - p).normalize_or_zero();
+                        let (d1, d2) = (unit(vertices[id1].p - p), unit(vertices[id2].p - p));
                         if d1.dot(d2).abs() > 0.999 {
                             return true;
                         }
-                        if d1.cross(d2).normalize_or_zero().dot(t.normal) < 0.2 {
+                        if unit(d1.cross(d2)).dot(t.normal) < 0.2 {
                             return true;
                         }
                     }
