@@ -647,6 +647,16 @@ mod tests {
         })
     }
 
+    /// At least half of `out`'s vertices are not `input`'s: placed anew, not kept.
+    fn assert_half_moved(input: &Indexed, out: &Indexed) {
+        let new = out.0.iter().filter(|p| !input.0.contains(p)).count();
+        assert!(
+            new * 2 >= out.0.len(),
+            "only {new} of {} vertices moved",
+            out.0.len()
+        );
+    }
+
     /// Each edge of a closed manifold mesh lies on exactly two triangles.
     fn closed(mesh: &Indexed) -> bool {
         edges(&mesh.1).0.iter().all(|(_, fs)| fs.len() == 2)
@@ -663,12 +673,7 @@ mod tests {
             out.0.len()
         );
         assert!(closed(&out));
-        let new = out.0.iter().filter(|p| !input.0.contains(p)).count();
-        assert!(
-            new * 2 >= out.0.len(),
-            "only {new} of {} vertices moved",
-            out.0.len()
-        );
+        assert_half_moved(&input, &out);
         // Optimal placement keeps the vertices near the sphere (its tangent planes pull them
         // slightly outside).
         let (lo, hi) = radii(&out);
@@ -685,12 +690,7 @@ mod tests {
             "{} of {target}",
             out.1.len()
         );
-        let new = out.0.iter().filter(|p| !input.0.contains(p)).count();
-        assert!(
-            new * 2 >= out.0.len(),
-            "only {new} of {} vertices moved",
-            out.0.len()
-        );
+        assert_half_moved(&input, &out);
         let (lo, hi) = radii(&out);
         assert!(lo > 0.98 && hi < 1.02, "{lo} {hi}");
     }
@@ -701,8 +701,7 @@ mod tests {
         let out = clustered(&input.0, &input.1, input.0.len() / 2);
         let ratio = out.0.len() as f64 / input.0.len() as f64;
         assert!((0.35..0.65).contains(&ratio), "{ratio}");
-        let new = out.0.iter().filter(|p| !input.0.contains(p)).count();
-        assert!(new * 2 >= out.0.len());
+        assert_half_moved(&input, &out);
         let (lo, hi) = radii(&out);
         assert!(lo > 0.97 && hi <= 1.0 + 1e-9, "{lo} {hi}");
     }
