@@ -275,6 +275,20 @@ fn measure(x: &Shape, y: &Shape, p: &DuplicateParams) -> Measured {
     }
 }
 
+/// A copy verified against its model alone (copy first), and what else the family's table
+/// says of it.
+struct Checked<'a> {
+    measured: Measured,
+    /// D2 distance to the model, and the copy's share of the model's welded vertices.
+    d2: f64,
+    kept: f64,
+    name: &'a str,
+    /// The pair passed the candidate filter.
+    candidate: bool,
+    /// Verified model first, the evidence differs.
+    one_way: bool,
+}
+
 #[derive(Debug, Clone, Serialize)]
 pub struct FalseLink {
     pub a: String,
@@ -512,7 +526,7 @@ pub fn run(
             .into_iter()
             .map(|min| level(&files, &members, &links, min))
             .collect();
-            let checked: Vec<(Measured, f64, f64, &str, bool, bool)> = files
+            let checked: Vec<Checked> = files
                 .par_iter()
                 .enumerate()
                 .filter(|(_, f)| f.disguise == Some(disguise))
@@ -528,34 +542,33 @@ pub fn run(
                     let forth = measure(&described[c].1, &described[o].1, p);
                     let back = measure(&described[o].1, &described[c].1, p);
                     let evidence = |m: &Measured| m.verdict.map(|v| v.evidence);
-                    let one_way = evidence(&forth) != evidence(&back);
-                    (
-                        forth,
+                    Checked {
+                        one_way: evidence(&forth) != evidence(&back),
+                        measured: forth,
                         d2,
                         kept,
-                        f.name.as_str(),
-                        candidate.contains(&pair),
-                        one_way,
-                    )
+                        name: f.name.as_str(),
+                        candidate: candidate.contains(&pair),
+                    }
                 })
                 .collect();
             let mut evidence = BTreeMap::new();
-            for (measured, ..) in &checked {
-                let name = measured.verdict.map_or("none", |v| v.evidence.as_str());
+            for c in &checked {
+                let name = c.measured.verdict.map_or("none", |v| v.evidence.as_str());
                 *evidence.entry(name.to_string()).or_insert(0) += 1;
             }
             let of = |f: &dyn Fn(&Deviation) -> f64| {
-                Distribution::of(checked.iter().map(|c| f(&c.0.deviation)).collect())
+                Distribution::of(checked.iter().map(|c| f(&c.measured.deviation)).collect())
             };
             let mut worst: Vec<Aligned> = checked
                 .iter()
                 .map(|c| Aligned {
-                    a: c.3.to_string(),
-                    b: files[original[&files[number[c.3]].source]].name.clone(),
-                    identical: c.0.identical,
-                    candidate: c.4,
-                    deviation: c.0.deviation,
-                    spacing: c.0.spacing,
+                    a: c.name.to_string(),
+                    b: files[original[&files[number[c.name]].source]].name.clone(),
+                    identical: c.measured.identical,
+                    candidate: c.candidate,
+                    deviation: c.measured.deviation,
+                    spacing: c.measured.spacing,
                 })
                 .collect();
             worst.sort_by(|x, y| {
@@ -567,17 +580,17 @@ pub fn run(
                 expected: disguise.expected(),
                 copies: checked.len(),
                 levels,
-                candidates: checked.iter().filter(|c| c.4).count(),
+                candidates: checked.iter().filter(|c| c.candidate).count(),
                 evidence,
-                vertices_kept: Distribution::of(checked.iter().map(|c| c.2).collect()),
-                d2: Distribution::of(checked.iter().map(|c| c.1).collect()),
+                vertices_kept: Distribution::of(checked.iter().map(|c| c.kept).collect()),
+                d2: Distribution::of(checked.iter().map(|c| c.d2).collect()),
                 aligned: of(&|d| d.surfaces.absolute.p99),
                 aligned_local: of(&|d| d.surfaces.local.p99),
                 vertices: of(&|d| d.vertices.p90),
                 one_way: checked
                     .iter()
-                    .filter(|c| c.5)
-                    .map(|c| c.3.to_string())
+                    .filter(|c| c.one_way)
+                    .map(|c| c.name.to_string())
                     .collect(),
                 worst,
             }
