@@ -427,6 +427,13 @@ fn duplicates_report_finds_every_family_with_its_evidence() {
             family["expected"]
         );
         assert_eq!(family["one_way"], Value::Array(vec![]), "{name}");
+        // No family damages these smooth shapes: every copy keeps most of the area, and a
+        // re-export all of it.
+        assert_eq!(family["damaged"], Value::Array(vec![]), "{name}");
+        let area = family["area_kept"]["median"].as_f64().unwrap();
+        if name == "reexported" {
+            assert!((area - 1.0).abs() < 1e-9, "{area}");
+        }
     }
     assert_eq!(report["false_links"], Value::Array(vec![]));
     assert!(std::fs::read_to_string(out.join("duplicates.md"))

@@ -38,6 +38,17 @@ pub use fast_quadric::fast_quadric;
 /// An indexed triangle mesh: positions and triangles.
 pub type Indexed = (Vec<DVec3>, Vec<[u32; 3]>);
 
+/// The surface area of an indexed mesh: how much of its model a copy kept.
+pub fn area(positions: &[DVec3], triangles: &[[u32; 3]]) -> f64 {
+    triangles
+        .iter()
+        .map(|t| {
+            let [a, b, c] = t.map(|v| positions[v as usize]);
+            (b - a).cross(c - a).length() / 2.0
+        })
+        .sum()
+}
+
 /// meshoptimizer's edge collapse down to `target` vertices (a subset of the input's).
 pub fn edge_collapse(positions: &[DVec3], triangles: &[[u32; 3]], target: usize) -> Indexed {
     salient_core::mesh::simplify::simplify(positions, triangles, target)
