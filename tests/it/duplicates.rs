@@ -206,8 +206,8 @@ fn a_low_poly_piano_halved_by_fast_quadric_is_as_far_from_it_as_its_morph_halved
     // the surface, within 0.01 of an edge, but cuts parts of so coarse a mesh away: the copy
     // of m125 lies as far from m125 as the same halving of the morph does (within a tenth,
     // 0.04 RMS radii on average, 0.35 at most), so no rule on these distances can take the
-    // one and not the other. Both are refused (a rule that
-    // dropped `mean_at_most` for vertices on the surface took both).
+    // one and not the other. Both are refused (a rule that dropped `mean_at_most` for
+    // vertices on the surface took both).
     let params = DuplicateParams::default();
     let fast_quadric: Family = |p, t, _| disguise::fast_quadric(p, t, t.len() / 2);
     let (piano, morph) = (capod("capod_piano_m125.obj"), capod("capod_piano_m124.obj"));

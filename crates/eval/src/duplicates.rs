@@ -231,7 +231,7 @@ pub struct Family {
     pub area_kept: Distribution,
     /// Copies that kept less than [`DAMAGED`] of their model's area, and the evidence each
     /// was found with (`none` when not a duplicate): counted in the measures like every copy.
-    pub damaged: Vec<(String, String)>,
+    pub damaged: Vec<Damaged>,
     /// D2 distances between copy and model.
     pub d2: Distribution,
     /// The 99th percentile of the aligned distances, in RMS radii and in triangle sizes
@@ -245,6 +245,13 @@ pub struct Family {
     pub one_way: Vec<String>,
     /// Every copy, farthest from its model first.
     pub worst: Vec<Aligned>,
+}
+
+/// A copy its simplifier damaged ([`DAMAGED`]), and the evidence it was found with.
+#[derive(Debug, Clone, Serialize)]
+pub struct Damaged {
+    pub copy: String,
+    pub found: &'static str,
 }
 
 /// Two files, their aligned deviation and the coarser one's typical triangle size (RMS
@@ -596,9 +603,9 @@ pub fn run(
                 damaged: checked
                     .iter()
                     .filter(|c| c.area_kept < DAMAGED)
-                    .map(|c| {
-                        let found = c.measured.verdict.map_or("none", |v| v.evidence.as_str());
-                        (c.name.to_string(), found.to_string())
+                    .map(|c| Damaged {
+                        copy: c.name.to_string(),
+                        found: c.measured.verdict.map_or("none", |v| v.evidence.as_str()),
                     })
                     .collect(),
                 d2: Distribution::of(checked.iter().map(|c| c.d2).collect()),
@@ -891,7 +898,7 @@ impl DuplicatesReport {
                 format!("{:.2} / {:.2}", f.area_kept.median, f.area_kept.min),
                 format!(
                     "{} / {}",
-                    f.damaged.iter().filter(|(_, e)| e != "none").count(),
+                    f.damaged.iter().filter(|d| d.found != "none").count(),
                     f.damaged.len()
                 ),
                 f.candidates.to_string(),
