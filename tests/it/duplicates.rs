@@ -769,6 +769,63 @@ fn a_pair_aligns_alike_whichever_comes_first() {
     }
 }
 
+/// A lathe (a tube of 160 segments) with three studs, small tetrahedra together 0.1 % of its
+/// area, at `(angle, height)`: it fits its surface as well turned by any step of its
+/// segments, and only the studs' vertices tell the turn (CAPOD's vase m64).
+fn studded(studs: [(f64, f64); 3]) -> RawMesh {
+    let mut mesh = shapes::tube(0.5, 12, 160);
+    for (angle, z) in studs {
+        let centre = DVec3::new(0.55 * angle.cos(), 0.55 * angle.sin(), z);
+        let base = mesh.positions.len() as u32;
+        mesh.positions.extend(
+            [
+                DVec3::ONE,
+                DVec3::new(1.0, -1.0, -1.0),
+                DVec3::new(-1.0, 1.0, -1.0),
+                DVec3::new(-1.0, -1.0, 1.0),
+            ]
+            .map(|corner| centre + corner * 0.01),
+        );
+        mesh.triangles
+            .extend([[0, 1, 2], [0, 3, 1], [0, 2, 3], [1, 3, 2]].map(|t| t.map(|i| base + i)));
+    }
+    mesh
+}
+
+#[test]
+fn a_lathe_re_triangulated_is_itself_at_any_turn_and_with_a_stud_moved_is_not() {
+    // Re-triangulated, the lathe keeps its vertices, so it is one mesh with its model only if
+    // they pair: the surfaces' fit, blind to the studs, settles on a step of the symmetry
+    // that misplaces them, which took the copy for a morph until the vertices chose the turn.
+    const STUDS: [(f64, f64); 3] = [(0.4, 0.5), (2.5, -0.3), (4.4, 0.1)];
+    let params = DuplicateParams::default();
+    let lathe = studded(STUDS);
+    let original = shape(&lathe);
+    let welded = weld(&lathe, 1e-6).unwrap();
+    let (positions, triangles) = disguise::retriangulated(&welded.positions, &welded.triangles);
+    let copy = RawMesh {
+        positions,
+        triangles,
+    };
+    for seed in 0..12 {
+        let moved = shape(&shapes::transformed(&copy, shapes::random_motion(seed)));
+        assert_eq!(
+            verify(&original, &moved, &params).map(|v| v.evidence),
+            Some(Evidence::SameShape),
+            "turned by motion {seed}"
+        );
+    }
+    // One stud moved a quarter of the way round: a part moved, another design, though the
+    // body pairs at that turn too.
+    let mut studs = STUDS;
+    studs[0].0 += std::f64::consts::FRAC_PI_2;
+    let edited = shape(&shapes::transformed(
+        &studded(studs),
+        shapes::random_motion(12),
+    ));
+    assert_eq!(verify(&original, &edited, &params), None);
+}
+
 /// The principal axes of a model spun about its axis (a double moment) must not depend on
 /// its size: at 0.1 × its size a retriangulated cone once aligned 0.18 RMS radii off.
 #[test]

@@ -120,6 +120,15 @@ impl Motion {
         self.rotation * p * self.scale + self.shift
     }
 
+    /// This motion followed by `turn` about the origin.
+    pub fn turned(&self, turn: Mat3) -> Motion {
+        Motion {
+            rotation: turn * self.rotation,
+            scale: self.scale,
+            shift: turn * self.shift,
+        }
+    }
+
     /// The motion undoing this one (`rotation` is a rotation or a reflection, so its
     /// inverse is its transpose).
     pub fn inverse(&self) -> Motion {
