@@ -715,7 +715,10 @@ impl Shape {
             // there gives a turn, and the one that pairs most of a sample of vertices (the
             // unpaired ones first) is refitted and kept if it pairs more.
             if (ONE_MESH..1.0).contains(&paired) {
-                let worst = (0..off.len()).max_by(|&a, &b| off[a].total_cmp(&off[b]));
+                // The fit paired some three vertices, so there are some.
+                let worst = (0..off.len())
+                    .max_by(|&a, &b| off[a].total_cmp(&off[b]))
+                    .unwrap_or_default();
                 let misplaced: Vec<u32> = (0..ours.len() as u32)
                     .filter(|&v| off[v as usize] > SAME_VERTEX)
                     .collect();
@@ -731,23 +734,17 @@ impl Shape {
                         .filter(|&&v| nearest(v, m).1 <= PAIRED[0])
                         .count()
                 };
-                let starts: Vec<Motion> = worst
-                    .into_iter()
-                    .flat_map(|v| {
-                        let p = exact.apply(placed[v]);
-                        let within = PAIRED[0] * self.edges[v] * scale * exact.scale;
-                        Vec3::AXES
-                            .iter()
-                            .filter_map(|&axis| {
-                                turns_onto(p, axis, theirs, within)
-                                    .into_iter()
-                                    .map(|turn| exact.turned(turn))
-                                    // The first of those pairing most (`max_by_key` keeps
-                                    // the last).
-                                    .rev()
-                                    .max_by_key(pairs)
-                            })
-                            .collect::<Vec<_>>()
+                let p = exact.apply(placed[worst]);
+                let within = PAIRED[0] * self.edges[worst] * scale * exact.scale;
+                let starts: Vec<Motion> = Vec3::AXES
+                    .iter()
+                    .filter_map(|&axis| {
+                        turns_onto(p, axis, theirs, within)
+                            .into_iter()
+                            .map(|turn| exact.turned(turn))
+                            // The first of those pairing most (`max_by_key` keeps the last).
+                            .rev()
+                            .max_by_key(pairs)
                     })
                     .collect();
                 for start in starts {
