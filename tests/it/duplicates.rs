@@ -15,6 +15,7 @@ use salient_eval::disguise::{self, Indexed};
 use serde_json::Value;
 
 use crate::app::TestApp;
+use crate::common::{TETRA_CORNERS, TETRA_TRIANGLES};
 use crate::server::{fixture, obj};
 use crate::shapes;
 use crate::stores::{stores, Stores};
@@ -769,7 +770,7 @@ fn a_pair_aligns_alike_whichever_comes_first() {
     }
 }
 
-/// A lathe (a tube of 160 segments) with three studs, small tetrahedra together 0.1 % of its
+/// A lathe (a tube of 160 segments) with three studs, small tetrahedra together 0.06 % of its
 /// area, at `(angle, height)`: it fits its surface as well turned by any step of its
 /// segments, and only the studs' vertices tell the turn (CAPOD's vase m64).
 fn studded(studs: [(f64, f64); 3]) -> RawMesh {
@@ -778,16 +779,13 @@ fn studded(studs: [(f64, f64); 3]) -> RawMesh {
         let centre = DVec3::new(0.55 * angle.cos(), 0.55 * angle.sin(), z);
         let base = mesh.positions.len() as u32;
         mesh.positions.extend(
-            [
-                DVec3::ONE,
-                DVec3::new(1.0, -1.0, -1.0),
-                DVec3::new(-1.0, 1.0, -1.0),
-                DVec3::new(-1.0, -1.0, 1.0),
-            ]
-            .map(|corner| centre + corner * 0.01),
+            TETRA_CORNERS.map(|corner| centre + DVec3::from(corner.map(f64::from)) * 0.025),
         );
-        mesh.triangles
-            .extend([[0, 1, 2], [0, 3, 1], [0, 2, 3], [1, 3, 2]].map(|t| t.map(|i| base + i)));
+        mesh.triangles.extend(
+            TETRA_TRIANGLES
+                .chunks(3)
+                .map(|t| [t[0], t[1], t[2]].map(|i| base + i)),
+        );
     }
     mesh
 }
